@@ -1,0 +1,7 @@
+"""bayes-brdf: Bayesian SVBRDF acquisition with uncertainty and capture guidance."""
+from . import render
+from .errors import InputError
+from .observations import Observations
+
+__version__ = "0.1.0"
+__all__ = ["render", "Observations", "InputError", "__version__"]

@@ -1,0 +1,11 @@
+"""The forward model R(x; theta): SVBRDF maps + views -> linear radiance images."""
+from .cameras import PerspectiveCamera, RectifiedCamera
+from .lights import PointLight
+from .maps import SVBRDF
+from .surface import PlanarSample
+from .views import View, collocated_views, hemisphere_directions, light_stage_views, orbit_views
+
+__all__ = [
+    "SVBRDF", "PerspectiveCamera", "RectifiedCamera", "PointLight", "PlanarSample", "View",
+    "collocated_views", "hemisphere_directions", "light_stage_views", "orbit_views",
+]

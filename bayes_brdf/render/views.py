@@ -1,0 +1,176 @@
+"""Views (a camera plus its lights) and generators of view configurations.
+
+A :class:`View` is one observation configuration ``theta`` of the paper: where
+the camera is, how it images the sample, and which lights are on. Generators:
+
+* :func:`hemisphere_directions` -- Fibonacci, Sobol or random unit directions on
+  the upper hemisphere (uniform in solid angle within ``max_zenith``).
+* :func:`collocated_views` -- a camera (perspective or rectified) at each
+  direction with a flash at the camera ("collocated").
+* :func:`orbit_views` -- collocated views on a ring at fixed zenith angle.
+* :func:`light_stage_views` -- every camera paired with every light.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+
+import torch
+
+from ..errors import InputError
+from .cameras import PerspectiveCamera, RectifiedCamera
+from .lights import PointLight
+
+Camera = PerspectiveCamera | RectifiedCamera
+
+
+@dataclass(frozen=True)
+class View:
+    """A camera and the point lights that are on for this observation.
+
+    Example:
+        >>> v = View.collocated(PerspectiveCamera(position=(0, 0, 3)), power=10)
+        >>> v.lights[0].position == v.camera.position
+        True
+    """
+
+    camera: Camera
+    lights: tuple[PointLight, ...]
+    name: str = ""
+
+    def __post_init__(self):
+        lights = tuple(self.lights) if not isinstance(self.lights, PointLight) else (self.lights,)
+        if not lights:
+            raise InputError(f"view {self.name or ''} has no light", fix="give at least one PointLight")
+        object.__setattr__(self, "lights", lights)
+
+    @classmethod
+    def collocated(cls, camera: Camera, power=1.0, falloff: bool = True, name: str = "") -> "View":
+        """A flash next to the lens: one point light at the camera position."""
+        return cls(camera, (PointLight(camera.position, power, falloff),), name)
+
+    @property
+    def resolution(self) -> tuple[int, int]:
+        return self.camera.resolution
+
+    # -------------------------------------------------------------- (de)serialise
+    def to_dict(self) -> dict:
+        cam = asdict(self.camera)
+        cam["type"] = "rectified" if isinstance(self.camera, RectifiedCamera) else "perspective"
+        return {"name": self.name, "camera": cam, "lights": [asdict(l) for l in self.lights]}
+
+    @classmethod
+    def from_dict(cls, d: dict, where: str = "view") -> "View":
+        try:
+            cam = dict(d["camera"])
+            kind = cam.pop("type", "perspective")
+            cam_cls = {"rectified": RectifiedCamera, "perspective": PerspectiveCamera}[kind]
+            lights = tuple(PointLight(**l) for l in d["lights"])
+            return cls(cam_cls(**cam), lights, d.get("name", ""))
+        except InputError as e:
+            raise InputError(str(e), where=where) from None
+        except (KeyError, TypeError, ValueError) as e:
+            raise InputError(f"malformed view entry ({e})", where=where,
+                             fix="each view needs 'camera' {type, position, ...} and 'lights' [{position, power}]") from None
+
+
+# ---------------------------------------------------------------- direction sets
+def hemisphere_directions(n: int, method: str = "fibonacci", max_zenith: float = 90.0,
+                          seed: int = 0) -> torch.Tensor:
+    """``n`` unit directions ``[n, 3]`` (float64) on the upper hemisphere.
+
+    Uniform in solid angle over zenith angles ``[0, max_zenith]`` degrees.
+    ``method``: ``"fibonacci"`` (deterministic spiral), ``"sobol"`` (scrambled,
+    by ``seed``) or ``"random"`` (i.i.d., by ``seed``).
+
+    Example:
+        >>> hemisphere_directions(100, "sobol", max_zenith=60).shape
+        torch.Size([100, 3])
+    """
+    if n < 1:
+        raise InputError(f"number of directions must be >= 1, got {n}")
+    if not 0 < max_zenith <= 90:
+        raise InputError(f"max_zenith must be in (0, 90] degrees, got {max_zenith}")
+    if method == "fibonacci":
+        i = torch.arange(n, dtype=torch.float64)
+        u = (i + 0.5) / n
+        v = (i * (math.sqrt(5) - 1) / 2) % 1.0  # golden-ratio increments
+    elif method == "sobol":
+        s = torch.quasirandom.SobolEngine(2, scramble=True, seed=seed).draw(n, dtype=torch.float64)
+        u, v = s[:, 0], s[:, 1]
+    elif method == "random":
+        g = torch.Generator().manual_seed(seed)
+        u, v = torch.rand(2, n, generator=g, dtype=torch.float64)
+    else:
+        raise InputError(f"unknown direction method '{method}'", fix="use fibonacci, sobol or random")
+    cmin = math.cos(math.radians(max_zenith))
+    cos_t = 1 - u * (1 - cmin)
+    sin_t = (1 - cos_t**2).clamp_min(0).sqrt()
+    phi = 2 * math.pi * v
+    return torch.stack([sin_t * phi.cos(), sin_t * phi.sin(), cos_t], dim=-1)
+
+
+def _cameras(dirs, radius, camera, resolution, fov, target):
+    tgt = torch.tensor(target, dtype=torch.float64)
+    out = []
+    for d in dirs:
+        pos = tuple((tgt + radius * d).tolist())
+        if camera == "perspective":
+            out.append(PerspectiveCamera(pos, target=target, fov=fov, resolution=resolution))
+        elif camera == "rectified":
+            out.append(RectifiedCamera(pos, resolution=resolution))
+        else:
+            raise InputError(f"unknown camera kind '{camera}'", fix="use perspective or rectified")
+    return out
+
+
+def collocated_views(n: int, radius: float, *, method: str = "fibonacci", max_zenith: float = 60.0,
+                     seed: int = 0, camera: str = "perspective", resolution=(128, 128), fov: float = 45.0,
+                     power=1.0, falloff: bool = True, target=(0.0, 0.0, 0.0)) -> list[View]:
+    """``n`` collocated (flash) views at distance ``radius`` from ``target``.
+
+    Example:
+        >>> vs = collocated_views(10, radius=3.0, method="sobol", resolution=32)
+        >>> len(vs), vs[0].resolution
+        (10, (32, 32))
+    """
+    dirs = hemisphere_directions(n, method, max_zenith, seed)
+    cams = _cameras(dirs, radius, camera, resolution, fov, target)
+    return [View.collocated(c, power, falloff, name=f"{method}{i}") for i, c in enumerate(cams)]
+
+
+def orbit_views(n: int, radius: float, zenith: float = 30.0, *, camera: str = "perspective",
+                resolution=(128, 128), fov: float = 45.0, power=1.0, falloff: bool = True,
+                target=(0.0, 0.0, 0.0)) -> list[View]:
+    """``n`` collocated views evenly spaced in azimuth at fixed ``zenith`` (degrees).
+
+    Example:
+        >>> [round(v.camera.position[2], 3) for v in orbit_views(2, 2.0, zenith=60)]
+        [1.0, 1.0]
+    """
+    t = math.radians(zenith)
+    phi = torch.arange(n, dtype=torch.float64) * 2 * math.pi / n
+    dirs = torch.stack([math.sin(t) * phi.cos(), math.sin(t) * phi.sin(), torch.full_like(phi, math.cos(t))], -1)
+    cams = _cameras(dirs, radius, camera, resolution, fov, target)
+    return [View.collocated(c, power, falloff, name=f"orbit{i}") for i, c in enumerate(cams)]
+
+
+def light_stage_views(camera_dirs, light_dirs, camera_radius: float, light_radius: float, *,
+                      camera: str = "perspective", resolution=(128, 128), fov: float = 45.0,
+                      power=1.0, falloff: bool = True, target=(0.0, 0.0, 0.0)) -> list[View]:
+    """Light-stage configurations: every camera paired with every light (one light on per view).
+
+    ``camera_dirs`` ``[C, 3]`` and ``light_dirs`` ``[L, 3]`` are unit directions
+    (e.g. from :func:`hemisphere_directions`); returns ``C * L`` views ordered
+    camera-major.
+
+    Example:
+        >>> cams = hemisphere_directions(3); lights = hemisphere_directions(4, "sobol")
+        >>> len(light_stage_views(cams, lights, 3.0, 5.0))
+        12
+    """
+    cams = _cameras(torch.as_tensor(camera_dirs, dtype=torch.float64), camera_radius, camera, resolution, fov, target)
+    tgt = torch.tensor(target, dtype=torch.float64)
+    lights = [PointLight(tuple((tgt + light_radius * torch.as_tensor(d, dtype=torch.float64)).tolist()), power, falloff)
+              for d in light_dirs]
+    return [View(c, (l,), name=f"cam{i}_light{j}") for i, c in enumerate(cams) for j, l in enumerate(lights)]
