@@ -1,0 +1,184 @@
+"""G-buffers: everything about a view that does not depend on the material.
+
+For each pixel of each view: the texture coordinate it sees, its 3-D position,
+the surface frame (tangent, bitangent, normal), the unit direction to the camera,
+the unit direction and squared distance to each light, the light's RGB power
+(with its falloff) and whether the pixel sees the sample at all. Computed once
+per view (analytically for the planar sample), in float64, then stored in the
+requested dtype/device; :class:`GBufferCache` keeps them so that shading never
+repeats geometry work.
+
+The pixel -> texel *footprint* (which pixels fall in the same texel of an
+``R x R`` map) is :meth:`GBuffer.texel_index`.
+"""
+from __future__ import annotations
+
+from collections import OrderedDict
+from dataclasses import dataclass, fields, replace
+
+import torch
+from torch import Tensor
+
+from ..errors import InputError
+from .cameras import RectifiedCamera
+from .surface import PlanarSample
+from .views import View
+
+
+@dataclass
+class GBuffer:
+    """Per-pixel geometry of ``V`` views of equal resolution ``(H, W)`` with up to ``L`` lights.
+
+    Shapes (channel-first): ``position, normal, tangent, bitangent, view_dir``
+    ``[V, 3, H, W]``; ``light_dir [V, L, 3, H, W]``; ``light_dist2 [V, L, 1, H, W]``;
+    ``light_scale [V, L, 3, H, W]`` (RGB power / distance^2, or power alone
+    without falloff, zero outside the mask or for padding lights); ``mask
+    [V, H, W]`` bool; ``uv [V, H, W, 2]`` ``grid_sample`` coordinates in
+    ``[-1, 1]``. ``aligned`` is True when every view is a rectified photo whose
+    pixels sit exactly on the texel grid of a map of resolution ``(H, W)``.
+
+    Example:
+        >>> from bayes_brdf.render.views import collocated_views
+        >>> g = GBuffer.build(collocated_views(2, 3.0, resolution=16), PlanarSample(2.0))
+        >>> g.light_dir.shape
+        torch.Size([2, 1, 3, 16, 16])
+    """
+
+    position: Tensor
+    normal: Tensor
+    tangent: Tensor
+    bitangent: Tensor
+    view_dir: Tensor
+    light_dir: Tensor
+    light_dist2: Tensor
+    light_scale: Tensor
+    mask: Tensor
+    uv: Tensor
+    align_corners: bool
+    aligned: bool
+
+    @classmethod
+    def build(cls, views: list[View], surface: PlanarSample, *, dtype=torch.float32, device=None) -> "GBuffer":
+        """Compute the G-buffer of ``views`` (all of one resolution) looking at ``surface``."""
+        views = list(views)
+        if not views:
+            raise InputError("no views given", fix="pass at least one View")
+        res = {tuple(v.resolution) for v in views}
+        if len(res) != 1:
+            raise InputError(f"views have different resolutions {sorted(res)}",
+                             fix="shade views of different resolutions in separate calls")
+        h, w = res.pop()
+        L = max(len(v.lights) for v in views)
+        t, b, n = surface.frame()
+        per_view = []
+        for v in views:
+            pos, mask = surface.hit(v.camera)
+            cam = torch.tensor(v.camera.position, dtype=torch.float64)[:, None, None]
+            vd = cam - pos
+            vd = vd / vd.norm(dim=0, keepdim=True).clamp_min(1e-30)
+            ld = torch.zeros(L, 3, h, w, dtype=torch.float64)
+            d2 = torch.ones(L, 1, h, w, dtype=torch.float64)
+            scale = torch.zeros(L, 3, h, w, dtype=torch.float64)
+            for i, light in enumerate(v.lights):
+                lv = torch.tensor(light.position, dtype=torch.float64)[:, None, None] - pos
+                dd = (lv * lv).sum(0, keepdim=True)
+                if bool((dd <= 0).any() & mask.any()):
+                    raise InputError(f"light {i} of view '{v.name}' lies on the sample surface",
+                                     fix="move the light off the sample plane")
+                ld[i] = lv / dd.clamp_min(1e-30).sqrt()
+                d2[i] = dd
+                pw = torch.tensor(light.power, dtype=torch.float64)[:, None, None]
+                scale[i] = pw / dd.clamp_min(1e-30) if light.falloff else pw.expand(3, h, w)
+            scale = scale * mask
+            per_view.append((pos, vd, ld, d2, scale, mask, surface.texture_coords(pos)))
+        stack = lambda k: torch.stack([pv[k] for pv in per_view])  # noqa: E731
+        frame = lambda e: e[None, :, None, None].expand(len(views), 3, h, w)  # noqa: E731
+        aligned = all(isinstance(v.camera, RectifiedCamera) for v in views)
+        g = cls(position=stack(0), normal=frame(n), tangent=frame(t), bitangent=frame(b), view_dir=stack(1),
+                light_dir=stack(2), light_dist2=stack(3), light_scale=stack(4), mask=stack(5), uv=stack(6),
+                align_corners=surface.align_corners, aligned=aligned)
+        return g.to(dtype=dtype, device=device)
+
+    @property
+    def num_views(self) -> int:
+        return self.position.shape[0]
+
+    @property
+    def resolution(self) -> tuple[int, int]:
+        return tuple(self.position.shape[-2:])
+
+    def to(self, dtype=None, device=None) -> "GBuffer":
+        """Move floating tensors to ``dtype``/``device`` (the mask stays bool)."""
+        out = {}
+        for f in fields(self):
+            t = getattr(self, f.name)
+            if isinstance(t, Tensor):
+                t = t.to(device=device, dtype=dtype if t.is_floating_point() and dtype else None)
+                out[f.name] = t.contiguous() if f.name not in ("normal", "tangent", "bitangent") else t
+        return replace(self, **out)
+
+    def views_slice(self, start: int, stop: int) -> "GBuffer":
+        """The G-buffer of views ``start:stop`` (for chunked shading)."""
+        return replace(self, **{f.name: getattr(self, f.name)[start:stop] for f in fields(self)
+                                if isinstance(getattr(self, f.name), Tensor)})
+
+    def texel_index(self, resolution) -> Tensor:
+        """Footprint: flat index ``[V, H, W]`` of the nearest texel of an ``(R_h, R_w)`` map (-1 if invalid).
+
+        Pixels of one view with equal index see the same texel.
+        """
+        rh, rw = (resolution, resolution) if isinstance(resolution, int) else resolution
+        u, v = self.uv[..., 0], self.uv[..., 1]
+        if self.align_corners:
+            col, row = (u + 1) / 2 * (rw - 1), (v + 1) / 2 * (rh - 1)
+        else:
+            col, row = (u + 1) / 2 * rw - 0.5, (v + 1) / 2 * rh - 0.5
+        col = col.round().long().clamp(0, rw - 1)
+        row = row.round().long().clamp(0, rh - 1)
+        return torch.where(self.mask, row * rw + col, torch.full_like(col, -1))
+
+    def unique_pixel_mask(self, resolution) -> Tensor:
+        """``[V, H, W]`` bool: one valid pixel per (view, texel), the first in raster order.
+
+        The paper's handling of redundant pixels (Sec. 3.4.1): pixels that
+        share a texel are counted once.
+        """
+        idx = self.texel_index(resolution)
+        V = idx.shape[0]
+        flat = idx.reshape(V, -1)
+        n_tex = (resolution if isinstance(resolution, int) else resolution[0]) * \
+                (resolution if isinstance(resolution, int) else resolution[1])
+        key = torch.where(flat >= 0, flat + torch.arange(V, device=flat.device)[:, None] * n_tex, -1)
+        order = torch.arange(flat.shape[1], device=flat.device).expand(V, -1)
+        first = torch.full((V * n_tex + 1,), flat.shape[1], dtype=torch.long, device=flat.device)
+        k = torch.where(key >= 0, key, V * n_tex)
+        first.scatter_reduce_(0, k.reshape(-1), order.reshape(-1), reduce="amin")
+        keep = (first[k] == order) & (key >= 0)
+        return keep.reshape(idx.shape)
+
+
+class GBufferCache:
+    """Keeps G-buffers by (views, surface, dtype, device) so each view's geometry is computed once.
+
+    Example:
+        >>> from bayes_brdf.render.views import collocated_views
+        >>> cache = GBufferCache()
+        >>> vs = collocated_views(2, 3.0, resolution=8)
+        >>> cache.get(vs, PlanarSample()) is cache.get(vs, PlanarSample())
+        True
+    """
+
+    def __init__(self, max_entries: int = 64):
+        self._store: OrderedDict = OrderedDict()
+        self.max_entries = max_entries
+
+    def get(self, views, surface, dtype=torch.float32, device=None) -> GBuffer:
+        key = (tuple(views), surface, dtype, str(torch.device(device) if device is not None else "cpu"))
+        if key in self._store:
+            self._store.move_to_end(key)
+            return self._store[key]
+        g = GBuffer.build(list(views), surface, dtype=dtype, device=device)
+        self._store[key] = g
+        if len(self._store) > self.max_entries:
+            self._store.popitem(last=False)
+        return g
