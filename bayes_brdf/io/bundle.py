@@ -1,0 +1,208 @@
+"""Our own observation bundle: a folder that stores an :class:`Observations` losslessly.
+
+Layout::
+
+    observations.json     format_version, units, surface {size, grid}, resolution,
+                          views (View.to_dict()), image / mask file names, meta
+    view_000.exr ...      one image per view: linear float32 EXR (exact), or
+                          16-bit PNG holding linear_to_srgb(image / scale, "srgb")
+    mask_000.png ...      8-bit 0/255 PNGs, when the observations have a mask
+    saturated_000.png ... likewise for the saturation mask
+
+PNG images are scaled by a per-view ``scale`` (recorded in the JSON) so that
+linear values above 1 survive; negative values are clipped to 0.
+"""
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from ..errors import InputError
+from ..observations import Observations
+from ..render.surface import PlanarSample
+from ..render.views import View
+from .images import _read_raw, _to_rgb, linear_to_srgb, srgb_to_linear, write_exr, write_png
+
+__all__ = ["save_observations", "load_observations", "FORMAT_VERSION", "BUNDLE_FILE"]
+
+FORMAT_VERSION = 1
+BUNDLE_FILE = "observations.json"
+_PNG_CURVE = "srgb"  # exact piecewise sRGB curve for PNG-stored images
+
+
+def _jsonable(x):
+    """Meta values made JSON-safe (paths and tuples become strings and lists)."""
+    if isinstance(x, dict):
+        return {str(k): _jsonable(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_jsonable(v) for v in x]
+    if isinstance(x, torch.Tensor):
+        return _jsonable(x.tolist())
+    if isinstance(x, np.generic):
+        return _jsonable(x.item())
+    if isinstance(x, np.ndarray):
+        return x.tolist()
+    if isinstance(x, float) and not math.isfinite(x):
+        return str(x)
+    if x is None or isinstance(x, (bool, int, float, str)):
+        return x
+    return str(x)
+
+
+def save_observations(obs: Observations, directory, image_format: str = "exr") -> Path:
+    """Save ``obs`` as a bundle folder; returns the path of ``observations.json``.
+
+    ``image_format="exr"`` (default) stores each view's linear ``[H, W, 3]``
+    image as float32 EXR (bit-exact); ``"png"`` stores 16-bit PNGs encoded with
+    the exact sRGB curve after dividing by a per-view scale (``max(1, max
+    value)``), so :func:`load_observations` gets the values back to within
+    16-bit quantisation (about 2e-5 relative). ``mask`` / ``saturated`` go to
+    8-bit PNGs. Existing files of the same names are overwritten.
+
+    Example:
+        >>> save_observations(obs, "runs/card_blue_128")              # doctest: +SKIP
+        PosixPath('runs/card_blue_128/observations.json')
+        >>> load_observations("runs/card_blue_128").images.shape     # doctest: +SKIP
+        torch.Size([9, 128, 128, 3])
+    """
+    if image_format not in ("exr", "png"):
+        raise InputError(f"unknown bundle image format '{image_format}'", fix="use exr (exact) or png (16-bit)")
+    d = Path(directory)
+    if d.exists() and not d.is_dir():
+        raise InputError("bundle path exists and is not a folder", where=d, fix="give a folder path")
+    d.mkdir(parents=True, exist_ok=True)
+    imgs = obs.images.detach().cpu().float()
+    entries = []
+    for i, v in enumerate(obs.views):
+        e = {"view": v.to_dict()}
+        x = imgs[i]
+        if image_format == "exr":
+            e["image"] = f"view_{i:03d}.exr"
+            write_exr(d / e["image"], x)
+        else:
+            scale = max(1.0, float(torch.nan_to_num(x, nan=0.0).max()))
+            e["image"], e["scale"] = f"view_{i:03d}.png", scale
+            write_png(d / e["image"], linear_to_srgb(x / scale, _PNG_CURVE), linear=False, bits=16)
+        for name in ("mask", "saturated"):
+            m = getattr(obs, name)
+            if m is not None:
+                e[name] = f"{name}_{i:03d}.png"
+                write_png(d / e[name], m[i].detach().cpu().float(), linear=False, bits=8)
+        entries.append(e)
+    doc = {
+        "format_version": FORMAT_VERSION,
+        "kind": "bayes_brdf.observations",
+        "units": (obs.meta or {}).get("units", ""),
+        "surface": {"size": obs.surface.size, "grid": obs.surface.grid},
+        "resolution": list(obs.resolution),
+        "image_format": image_format,
+        "png_curve": _PNG_CURVE if image_format == "png" else None,
+        "views": entries,
+        "meta": _jsonable(obs.meta or {}),
+    }
+    out = d / BUNDLE_FILE
+    out.write_text(json.dumps(doc, indent=2, allow_nan=False))
+    return out
+
+
+def _load_mask(path: Path, shape) -> torch.Tensor:
+    a, full = _read_raw(path)
+    if a.shape[:2] != tuple(shape):
+        raise InputError(f"mask is {a.shape[1]}x{a.shape[0]} but the images are {shape[1]}x{shape[0]}", where=path)
+    thr = (full or 1.0) / 2
+    return torch.from_numpy(np.ascontiguousarray(a[..., 0] > thr))
+
+
+def load_observations(directory) -> Observations:
+    """Load a bundle written by :func:`save_observations` (``directory`` or its ``observations.json``).
+
+    Returns an equal :class:`Observations`: images ``[V, H, W, 3]`` float32
+    (exact from EXR, within 16-bit quantisation from PNG), the same views,
+    surface, masks and meta.
+
+    Example:
+        >>> obs = load_observations("runs/card_blue_128")   # doctest: +SKIP
+        >>> obs.meta["format"]   # doctest: +SKIP
+        'materialgan'
+    """
+    d = Path(directory)
+    if not d.exists():
+        raise InputError("bundle path does not exist", where=d, fix="check the path")
+    jf = d if d.is_file() else d / BUNDLE_FILE
+    d = jf.parent
+    if not jf.is_file():
+        raise InputError(f"no {BUNDLE_FILE} in this folder", where=d, fix="point to a folder written by save_observations")
+    try:
+        doc = json.loads(jf.read_text())
+    except json.JSONDecodeError as e:
+        raise InputError(f"malformed JSON at line {e.lineno} column {e.colno} ({e.msg})", where=jf,
+                         fix="fix the JSON syntax or re-save the bundle") from None
+    except (OSError, UnicodeDecodeError) as e:
+        raise InputError(f"cannot read file ({e})", where=jf) from None
+    if not isinstance(doc, dict):
+        raise InputError("expected a JSON object at the top level", where=jf)
+    for k in ("format_version", "surface", "views"):
+        if k not in doc:
+            raise InputError(f"missing key '{k}'", where=jf, fix="re-save the bundle with save_observations")
+    ver = doc["format_version"]
+    if not isinstance(ver, int) or ver > FORMAT_VERSION or ver < 1:
+        raise InputError(f"unsupported bundle format_version {ver!r} (this version reads 1..{FORMAT_VERSION})",
+                         where=jf, fix="upgrade bayes_brdf or re-save the bundle")
+    try:
+        surface = PlanarSample(size=float(doc["surface"]["size"]), grid=doc["surface"].get("grid", "centers"))
+    except InputError as e:
+        raise InputError(str(e), where=jf) from None
+    except (KeyError, TypeError, ValueError, AttributeError):
+        raise InputError("'surface' must be {\"size\": cm, \"grid\": centers|endpoints}", where=jf) from None
+    entries = doc["views"]
+    if not isinstance(entries, list) or not entries:
+        raise InputError("'views' must be a non-empty list", where=jf)
+    views, images, masks, sats = [], [], [], []
+    for i, e in enumerate(entries):
+        if not isinstance(e, dict) or "view" not in e or "image" not in e:
+            raise InputError(f"views[{i}] needs 'view' and 'image'", where=jf, fix="re-save the bundle")
+        views.append(View.from_dict(e["view"], where=f"{jf} views[{i}]"))
+        ip = d / str(e["image"])
+        if not ip.is_file():
+            raise InputError("image listed in observations.json is missing", where=ip, fix="restore it or re-save the bundle")
+        raw, full = _read_raw(ip)
+        rgb = _to_rgb(raw)
+        if full is None:
+            x = torch.from_numpy(np.ascontiguousarray(rgb, dtype=np.float32))
+        else:
+            scale = e.get("scale", 1.0)
+            if not isinstance(scale, (int, float)) or not math.isfinite(scale) or scale <= 0:
+                raise InputError(f"views[{i}].scale must be a positive number, got {scale!r}", where=jf)
+            enc = torch.from_numpy(rgb.astype(np.float64)) / full
+            x = (srgb_to_linear(enc, doc.get("png_curve") or _PNG_CURVE) * scale).to(torch.float32)
+        if not bool(torch.isfinite(x).all()):
+            raise InputError("image has NaN or infinite pixel values", where=ip, fix="re-save the bundle with finite images")
+        if bool((x < 0).any()):
+            raise InputError(f"image has negative pixel values (min {float(x.min()):.3g})", where=ip,
+                             fix="radiance must be >= 0; clamp the images and re-save")
+        if tuple(x.shape[:2]) != tuple(views[-1].resolution):
+            raise InputError(f"image is {x.shape[1]}x{x.shape[0]} but its view says {views[-1].resolution}", where=ip)
+        if images and x.shape != images[0].shape:
+            raise InputError(f"image is {x.shape[1]}x{x.shape[0]} but {entries[0]['image']} is "
+                             f"{images[0].shape[1]}x{images[0].shape[0]}", where=ip, fix="all views must share one size")
+        images.append(x)
+        for name, acc in (("mask", masks), ("saturated", sats)):
+            if e.get(name):
+                mp = d / str(e[name])
+                if not mp.is_file():
+                    raise InputError(f"{name} image listed in observations.json is missing", where=mp)
+                acc.append(_load_mask(mp, x.shape[:2]))
+    for name, acc in (("mask", masks), ("saturated", sats)):
+        if acc and len(acc) != len(entries):
+            raise InputError(f"only {len(acc)} of {len(entries)} views list a {name} image", where=jf,
+                             fix="give every view a mask image or none")
+    meta = doc.get("meta", {}) if isinstance(doc.get("meta", {}), dict) else {}
+    try:
+        return Observations(views, torch.stack(images), surface, mask=torch.stack(masks) if masks else None,
+                            saturated=torch.stack(sats) if sats else None, meta=meta)
+    except InputError as err:
+        raise InputError(str(err), where=jf) from None
