@@ -1,0 +1,207 @@
+"""The ``bayes-brdf`` command line.
+
+Commands (``bayes-brdf COMMAND --help`` for each):
+
+* ``render MATERIAL``  -- shade a procedural material or a maps folder under
+  generated views (or a capture's views) and write an observation bundle
+  (images + ``observations.json``) plus sRGB previews.
+* ``inspect CAPTURE``  -- what a capture (any supported format) contains.
+
+Bad input prints ONE line ``bayes-brdf: error: ...`` and exits with code 2.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+from pathlib import Path
+
+from .. import __version__
+from ..errors import InputError
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse with one-line errors (exit 2) instead of usage dumps."""
+
+    def error(self, message):  # noqa: D401
+        self.exit(2, f"{self.prog}: error: {message}; see '{self.prog} --help'\n")
+
+
+def _positive_int(s: str) -> int:
+    try:
+        v = int(s)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got '{s}'") from None
+    if v < 1:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got '{s}'")
+    return v
+
+
+def _positive_float(s: str) -> float:
+    try:
+        v = float(s)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a positive number, got '{s}'") from None
+    if not v > 0 or v == float("inf"):
+        raise argparse.ArgumentTypeError(f"expected a positive number, got '{s}'")
+    return v
+
+
+# ------------------------------------------------------------------ commands
+def _views_from_spec(spec: str, a) -> list:
+    from ..render.views import View, collocated_views, orbit_views
+
+    p = Path(spec)
+    if p.suffix.lower() == ".json" or p.exists():
+        if not p.is_file():
+            raise InputError("views file not found", where=p, fix="give fibonacci:N, sobol:N, random:N, orbit:N or a JSON file")
+        try:
+            data = json.loads(p.read_text())
+        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
+            raise InputError(f"unreadable views JSON ({e})", where=p) from None
+        data = data.get("views", data) if isinstance(data, dict) else data
+        if not isinstance(data, list) or not data:
+            raise InputError("expected a non-empty list of views", where=p, fix="see observations.json written by 'render'")
+        # a plain list of views, or the "views" of an observations.json bundle ({"view": {...}, "image": ...})
+        return [View.from_dict(d.get("view", d) if isinstance(d, dict) else d, where=f"{p}[{i}]")
+                for i, d in enumerate(data)]
+    kind, _, num = spec.partition(":")
+    if kind not in ("fibonacci", "sobol", "random", "orbit") or not num.isdigit() or int(num) < 1:
+        raise InputError(f"bad --views '{spec}'", fix="use fibonacci:N, sobol:N, random:N, orbit:N or a JSON file of views")
+    common = dict(camera=a.camera, resolution=a.resolution, fov=a.fov, power=a.power)
+    if kind == "orbit":
+        return orbit_views(int(num), a.radius, zenith=a.max_zenith / 2, **common)
+    return collocated_views(int(num), a.radius, method=kind, max_zenith=a.max_zenith, seed=a.seed, **common)
+
+
+def _load_material(name: str, a):
+    from ..io import load_svbrdf
+    from ..materials import MATERIALS, make_material
+
+    if Path(name).is_dir():
+        return load_svbrdf(name)
+    if name not in MATERIALS:
+        raise InputError(f"'{name}' is neither a procedural material nor a maps folder",
+                         fix=f"use one of {', '.join(sorted(MATERIALS))} or a folder with albedo/roughness/specular/normal maps")
+    return make_material(name, a.resolution, seed=a.seed)
+
+
+def cmd_render(a) -> int:
+    import torch
+    from tqdm import tqdm
+
+    from ..io import load_capture, save_observations, save_svbrdf, write_png
+    from ..observations import Observations
+    from ..render.gbuffer import GBuffer
+    from ..render.shade import shade
+    from ..render.surface import PlanarSample
+
+    if a.capture:
+        cap = load_capture(a.capture, resolution=a.resolution)
+        views, surface = cap.views, cap.surface
+    else:
+        views, surface = _views_from_spec(a.views, a), PlanarSample(a.sample_size)
+    maps = _load_material(a.material, a).to(dtype=torch.float32, device=a.device)
+    out = Path(a.out)
+    out.mkdir(parents=True, exist_ok=True)
+    groups: dict = {}
+    for i, v in enumerate(views):
+        groups.setdefault(tuple(v.resolution), []).append(i)
+    if len(groups) > 1:
+        raise InputError(f"views have {len(groups)} different resolutions", fix="render them in separate calls")
+    images = []
+    with torch.no_grad():
+        for v in tqdm(views, desc="render", unit="view", disable=not sys.stderr.isatty() or len(views) < 4):
+            g = GBuffer.build([v], surface, device=a.device)
+            images.append(shade(maps, g)[0, 0].cpu())
+    imgs = torch.stack(images)
+    obs = Observations(views, imgs, surface, meta={"source": "bayes-brdf render", "material": a.material,
+                                                   "seed": a.seed, "units": "scene units"})
+    save_observations(obs, out, image_format=a.format)
+    save_svbrdf(maps.to("cpu"), out / "maps")
+    for i, im in enumerate(imgs):
+        write_png(out / f"preview_{i:02d}.png", im.clamp(0, 1).numpy())
+    print(f"rendered {len(views)} views of '{a.material}' at {imgs.shape[1]}x{imgs.shape[2]} -> {out}/ "
+          f"(observations.json, {a.format.upper()} images, preview_*.png, maps/)")
+    return 0
+
+
+def cmd_inspect(a) -> int:
+    from ..io import describe, load_capture
+
+    obs = load_capture(a.capture, resolution=a.resolution, fmt=a.format)
+    print(describe(obs))
+    return 0
+
+
+# ------------------------------------------------------------------ parser
+def build_parser() -> argparse.ArgumentParser:
+    p = _Parser(prog="bayes-brdf", description="Bayesian SVBRDF acquisition: posteriors, uncertainty, capture guidance.")
+    p.add_argument("--version", action="version", version=f"bayes-brdf {__version__}")
+    sub = p.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
+
+    r = sub.add_parser("render", help="render a material under views and write an observation bundle",
+                       description="Render a procedural material (wood, tiles, marble, scratched_metal, leather, fabric) "
+                                   "or a maps folder under generated views or a capture's views. Writes an observation "
+                                   "bundle (observations.json + images), sRGB previews and the maps.")
+    r.add_argument("material", help="procedural material name, or a folder with albedo/roughness/specular/normal maps")
+    src = r.add_mutually_exclusive_group()
+    src.add_argument("--views", default="fibonacci:8",
+                     help="fibonacci:N, sobol:N, random:N (collocated, hemisphere), orbit:N, or a JSON file of views "
+                          "(default: %(default)s)")
+    src.add_argument("--capture", help="render at the views (poses, lights, sample size) of this capture instead")
+    r.add_argument("--seed", type=int, default=0, help="material and view-set seed (default: %(default)s)")
+    r.add_argument("--resolution", type=_positive_int, default=128, help="map and image resolution (default: %(default)s)")
+    r.add_argument("--camera", choices=["perspective", "rectified"], default="perspective",
+                   help="camera model for generated views (default: %(default)s)")
+    r.add_argument("--radius", type=_positive_float, default=3.0, help="camera distance to the sample centre (default: %(default)s)")
+    r.add_argument("--max-zenith", type=_positive_float, default=60.0, help="largest camera zenith angle in degrees (default: %(default)s)")
+    r.add_argument("--fov", type=_positive_float, default=45.0, help="perspective field of view in degrees (default: %(default)s)")
+    r.add_argument("--power", type=_positive_float, default=20.0, help="flash power (radiance = f cos P / d^2) (default: %(default)s)")
+    r.add_argument("--sample-size", type=_positive_float, default=2.0, help="side of the square sample (default: %(default)s)")
+    r.add_argument("--format", choices=["exr", "png"], default="exr", help="image format of the bundle (default: %(default)s)")
+    r.add_argument("--device", default="cpu", help="torch device, e.g. cpu or cuda (default: %(default)s)")
+    r.add_argument("--out", default="out/render", help="output folder (default: %(default)s)")
+    r.set_defaults(func=cmd_render)
+
+    i = sub.add_parser("inspect", help="show what a capture contains",
+                       description="Load a capture (MaterialGAN, svbrdf-diff-renderer parameters.json / optim.json, "
+                                   "or our observations.json bundle) and print views, resolution, poses, value ranges "
+                                   "and saturated pixels.")
+    i.add_argument("capture", help="capture folder (or its parameters.json / optim.json / observations.json)")
+    i.add_argument("--resolution", type=_positive_int, default=None, help="resample to this resolution (default: native)")
+    i.add_argument("--format", default="auto",
+                   choices=["auto", "materialgan", "svbrdf-diff-renderer", "svbrdf-diff-renderer-optim", "bundle"],
+                   help="capture format (default: %(default)s, detected from the files)")
+    i.set_defaults(func=cmd_inspect)
+    return p
+
+
+def main(argv=None) -> int:
+    parser = build_parser()
+    a = parser.parse_args(argv)
+    if not getattr(a, "command", None):
+        parser.print_help()
+        return 2
+    if getattr(a, "device", "cpu").startswith("cuda"):
+        import torch
+
+        if not torch.cuda.is_available():
+            print(f"bayes-brdf: error: --device {a.device}: no CUDA device here; use --device cpu", file=sys.stderr)
+            return 2
+    try:
+        return a.func(a)
+    except InputError as e:
+        print(f"bayes-brdf: error: {e}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("bayes-brdf: interrupted", file=sys.stderr)
+        return 130
+    except BrokenPipeError:  # e.g. `bayes-brdf inspect X | head`
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
