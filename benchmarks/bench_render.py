@@ -7,6 +7,10 @@ Usage:
 Setting: rectified collocated views (the captures' case, one texel per pixel),
 per-particle albedo (RGB), roughness and specular (RGB), normals held fixed;
 the backward pass takes a gradient of the radiance w.r.t. every per-particle map.
+Two paths: "images" returns the radiance images ``[n, V, 3, H, W]`` (memory-bound
+at this size: the output alone is 79 MB at 128^2) and back-propagates a given
+image gradient; "loss" fuses shading with the L1 likelihood (the sampler's hot
+path) so the images are never materialised.
 Prints milliseconds per forward+backward (median over repeats, after warm-up).
 """
 from __future__ import annotations
@@ -19,10 +23,10 @@ import torch
 
 from bayes_brdf.render import SVBRDF, PlanarSample, collocated_views
 from bayes_brdf.render.gbuffer import GBuffer
-from bayes_brdf.render.shade import shade
+from bayes_brdf.render.shade import shade, shade_loss
 
 
-def bench(n, V, res, backend, repeats, device="cpu"):
+def bench(n, V, res, backend, repeats, device="cpu", path="images"):
     views = collocated_views(V, radius=15.0, camera="rectified", resolution=res, power=1500.0, method="sobol")
     g = GBuffer.build(views, PlanarSample(10.0), device=device)
     gen = torch.Generator().manual_seed(0)
@@ -30,9 +34,13 @@ def bench(n, V, res, backend, repeats, device="cpu"):
     normal = torch.tensor([0.0, 0.0, 1.0], device=device)[:, None, None].expand(3, res, res)
     gout = torch.rand(n, V, 3, res, res, generator=gen).to(device)
 
+    target = torch.rand(V, res, res, 3, generator=gen).to(device)
+
     def step():
-        img = shade(SVBRDF(maps[0], 0.05 + 0.95 * maps[1], maps[2] * 0.5, normal), g, backend=backend,
-                    channels_last=False)
+        x = SVBRDF(maps[0], 0.05 + 0.95 * maps[1], maps[2] * 0.5, normal)
+        if path == "loss":  # the sampler's hot path: shading fused with the L1 likelihood
+            return torch.autograd.grad(shade_loss(x, g, target, 100.0, backend=backend).sum(), maps)
+        img = shade(x, g, backend=backend, channels_last=False)
         return torch.autograd.grad(img, maps, gout)
 
     t0 = time.perf_counter()
@@ -59,17 +67,20 @@ def main():
     ap.add_argument("--res", type=int, nargs="+", default=[64, 128, 256])
     ap.add_argument("--backends", nargs="+", default=["eager", "compiled"])
     ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--paths", nargs="+", default=["images", "loss"], choices=["images", "loss"],
+                    help="images: shade -> [n,V,H,W,3] then backward; loss: fused shade + L1 loss -> [n] then backward")
     ap.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu")
     a = ap.parse_args()
     print(f"# shading forward+backward, {a.particles} particles x {a.views} views, device={a.device}, "
           f"torch {torch.__version__}, {torch.get_num_threads()} threads")
-    print("| resolution | backend | ms / fwd+bwd | Mpix-evals/s | first call (s) |")
-    print("|---|---|---|---|---|")
-    for res in a.res:
-        for b in a.backends:
-            ms, warm = bench(a.particles, a.views, res, b, a.repeats, a.device)
-            evals = a.particles * a.views * res * res
-            print(f"| {res}^2 | {b} | {ms:.1f} | {evals / ms / 1e3:.0f} | {warm:.1f} |", flush=True)
+    print("| path | resolution | backend | ms / fwd+bwd | Mpix-evals/s | first call (s) |")
+    print("|---|---|---|---|---|---|")
+    for path in a.paths:
+        for res in a.res:
+            for b in a.backends:
+                ms, warm = bench(a.particles, a.views, res, b, a.repeats, a.device, path)
+                evals = a.particles * a.views * res * res
+                print(f"| {path} | {res}^2 | {b} | {ms:.1f} | {evals / ms / 1e3:.0f} | {warm:.1f} |", flush=True)
 
 
 if __name__ == "__main__":

@@ -70,21 +70,6 @@ def _forward(kd, r, ks, nl, nv, nh, vh, scale, ks_factor: bool):
     return (A * (kd * q + s * (ks * (1 - w) + w))).sum(2)
 
 
-def _backward(gout, kd, r, ks, nl, nv, nh, vh, scale, ks_factor: bool):
-    shapes = kd.shape, r.shape, ks.shape
-    kd, r, ks = (x.unsqueeze(2) for x in (kd, r, ks))
-    g = gout.unsqueeze(2) * (scale * nl)  # [n, V, L, 3, H, W]: dout/d(bracket)
-    s, a, a2, nh2, den, gl, gv = _spec_terms(r, nl, nv, nh)
-    w = (((-5.55473) * vh - 6.98316) * vh * LN2).exp()
-    dlns = 4 * r * a * (1 / a2 - 2 * nh2 / den) - r * ((1 - nl) / gl + (1 - nv) / gv)
-    q = (1 - ks) * INV_PI if ks_factor else torch.full_like(ks, INV_PI)
-    gkd = (g * q).sum(2)
-    gks = (g * (s * (1 - w) - (kd * INV_PI if ks_factor else 0.0))).sum(2)
-    gr = (g * (ks * (1 - w) + w)).sum(3, keepdim=True) * (s * dlns)
-    gr = gr.sum(2)
-    return gkd.sum_to_size(shapes[0]), gr.sum_to_size(shapes[1]), gks.sum_to_size(shapes[2])
-
-
 _compiled: dict = {}
 _failed: set = set()
 
@@ -119,8 +104,8 @@ class _FusedShade(torch.autograd.Function):
     @staticmethod
     def backward(ctx, gout):
         kd, r, ks, nl, nv, nh, vh, scale = ctx.saved_tensors
-        gkd, gr, gks = _get_compiled("bwd", _backward)(gout.contiguous(), kd, r, ks, nl, nv, nh, vh, scale,
-                                                       ctx.ks_factor)
+        gkd, gr, gks = _per_view_backward("bwd", _image_grad_view, gout, kd, r, ks, nl, nv, nh, vh, scale,
+                                          (ctx.ks_factor,))
         return gkd, gr, gks, None, None, None, None, None, None
 
 
@@ -185,11 +170,11 @@ def _loss_forward(kd, r, ks, nl, nv, nh, vh, scale, y, wgt, ks_factor: bool, l1:
     return (wgt * (d.abs() if l1 else d * d)).flatten(1).sum(1)
 
 
-def _loss_backward_view(ge, kd, r, ks, nl, nv, nh, vh, scale, y, wgt, ks_factor: bool, l1: bool):
-    """Gradient contribution of ONE view: pointwise over ``[n, 3, H, W]`` (fuses into one loop).
+def _view_terms(kd, r, ks, nl, nv, nh, vh, scale, ks_factor: bool):
+    """Radiance of ONE view and the per-light terms its gradients need (pointwise over ``[n, 3, H, W]``).
 
-    ``kd, ks [n, 3, H, W]``, ``r [n, 1, H, W]``, cosines ``[L, 1, H, W]``,
-    ``scale [L, 3, H, W]``, ``y [3, H, W]``, ``wgt [1, H, W]``, ``ge [n, 1, 1, 1]``.
+    ``kd, ks [n, 3, H, W]``, ``r [n, 1, H, W]``, cosines ``[L, 1, H, W]`` (``n.v``: ``[1, 1, H, W]``),
+    ``scale [L, 3, H, W]``.
     """
     q = (1 - ks) * INV_PI if ks_factor else INV_PI
     terms = []
@@ -202,8 +187,10 @@ def _loss_backward_view(ge, kd, r, ks, nl, nv, nh, vh, scale, y, wgt, ks_factor:
         out = out + A * (kd * q + s * F)
         dlns = 4 * r * a * (1 / a2 - 2 * nh2 / den) - r * ((1 - nl[li]) / gl + (1 - nv[0]) / gv)
         terms.append((A, s, w, F, dlns))
-    d = out - y
-    g = ge * wgt * (torch.sign(d) if l1 else 2 * d)
+    return out, terms, q
+
+
+def _accumulate(g, kd, terms, q, ks_factor: bool):
     gkd = gr = gks = 0.0
     for A, s, w, F, dlns in terms:
         gA = g * A
@@ -213,22 +200,37 @@ def _loss_backward_view(ge, kd, r, ks, nl, nv, nh, vh, scale, y, wgt, ks_factor:
     return gkd, gr, gks
 
 
-def _loss_backward(ge, kd, r, ks, nl, nv, nh, vh, scale, y, wgt, ks_factor: bool, l1: bool):
-    # One compiled pointwise kernel per view, accumulated here: a reduction over
-    # the (non-contiguous) view axis inside one compiled graph was 20x slower.
-    fn = _get_compiled("loss_bwd_view", _loss_backward_view)
-    ge = ge[:, None, None, None]
+def _image_grad_view(gout, kd, r, ks, nl, nv, nh, vh, scale, ks_factor: bool):
+    """Gradient contribution of ONE view given ``d loss / d radiance`` ``gout [n, 3, H, W]``."""
+    _, terms, q = _view_terms(kd, r, ks, nl, nv, nh, vh, scale, ks_factor)
+    return _accumulate(gout, kd, terms, q, ks_factor)
+
+
+def _loss_grad_view(ge, kd, r, ks, nl, nv, nh, vh, scale, y, wgt, ks_factor: bool, l1: bool):
+    """Gradient contribution of ONE view to the loss (``y [3, H, W]``, ``wgt [1, H, W]``, ``ge [n, 1, 1, 1]``)."""
+    out, terms, q = _view_terms(kd, r, ks, nl, nv, nh, vh, scale, ks_factor)
+    d = out - y
+    return _accumulate(ge * wgt * (torch.sign(d) if l1 else 2 * d), kd, terms, q, ks_factor)
+
+
+def _per_view_backward(name, fn, first, kd, r, ks, nl, nv, nh, vh, scale, extra=()):
+    """Sum the per-view gradient kernels over views.
+
+    One compiled pointwise kernel per view, accumulated here: a reduction over
+    the (non-contiguous) view axis inside one compiled graph was several times slower.
+    ``first`` and each tensor of ``extra`` are indexed by view when they have
+    a view axis (``first`` is ``[n, V, 3, H, W]`` for images, ``[n]`` for losses).
+    """
+    f = _get_compiled(name, fn)
     kd_, r_, ks_ = kd[:, 0], r[:, 0], ks[:, 0]
-    gkd = torch.zeros_like(kd_)
-    gr = torch.zeros_like(r_)
-    gks = torch.zeros_like(ks_)
+    gkd = gr = gks = None
     for v in range(nl.shape[1]):
-        a, b, c = fn(ge, kd_, r_, ks_, nl[0, v], nv[0, v], nh[0, v], vh[0, v], scale[0, v], y[v], wgt[v],
-                     ks_factor, l1)
-        gkd += a
-        gr += b
-        gks += c
-    return gkd[:, None], gr[:, None], gks[:, None]
+        head = first[:, v].contiguous() if first.dim() == 5 else first[:, None, None, None]
+        a, b, c = f(head, kd_, r_, ks_, nl[0, v], nv[0, v], nh[0, v], vh[0, v], scale[0, v],
+                    *(e[v] if isinstance(e, Tensor) else e for e in extra))
+        gkd, gr, gks = (a, b, c) if gkd is None else (gkd + a, gr + b, gks + c)
+    # particles broadcast in the kernel: a map held fixed (n = 1) gets the sum over particles
+    return gkd.sum_to_size(kd_.shape)[:, None], gr.sum_to_size(r_.shape)[:, None], gks.sum_to_size(ks_.shape)[:, None]
 
 
 class _FusedLoss(torch.autograd.Function):
@@ -240,7 +242,9 @@ class _FusedLoss(torch.autograd.Function):
 
     @staticmethod
     def backward(ctx, ge):
-        gkd, gr, gks = _loss_backward(ge.contiguous(), *ctx.saved_tensors, *ctx.flags)
+        kd, r, ks, nl, nv, nh, vh, scale, y, wgt = ctx.saved_tensors
+        gkd, gr, gks = _per_view_backward("loss_bwd", _loss_grad_view, ge.contiguous(), kd, r, ks, nl, nv, nh, vh,
+                                          scale, (y, wgt, *ctx.flags))
         return (gkd, gr, gks) + (None,) * 9
 
 
