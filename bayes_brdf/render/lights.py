@@ -5,7 +5,7 @@
 With ``falloff=False`` the light only sets the direction ("directions only" mode:
 ``radiance = brdf * cos(theta_l) * power``), as some synthetic data sets use.
 A collocated flash is a point light at the camera position (see
-:func:`bayes_brdf.render.views.collocated`).
+:meth:`bayes_brdf.render.views.View.collocated`).
 """
 from __future__ import annotations
 

@@ -11,7 +11,7 @@ map        channels  meaning
 albedo     3         diffuse albedo ``kd`` in [0, 1] (linear RGB)
 roughness  1         perceptual roughness ``r`` in (0, 1]; GGX ``alpha = r^2``
 specular   3         specular albedo ``ks`` (Fresnel F0) in [0, 1]
-normal     3         unit tangent-space normal (z = up, x = +u, y = +v)
+normal     3         unit tangent-space normal (z = up, x = world +x, y = world +y, i.e. towards texel row 0)
 =========  ========  =========================================================
 """
 from __future__ import annotations

@@ -78,7 +78,8 @@ def shade(maps: SVBRDF, g: GBuffer, *, ks_factor: bool = True, eps: float = 1e-8
     MaterialGAN convention); ``eps`` is the clamp on every cosine; ``backend``
     picks the per-pixel kernel: ``"eager"`` (plain torch, the reference),
     ``"compiled"`` (fused with analytic gradients, via ``torch.compile``) or
-    ``"auto"`` (compiled when available, else eager). Pixels outside the
+    ``"auto"`` (compiled when ``torch.compile`` works and the call has at least
+    ``fused.AUTO_COMPILE_MIN_WORK`` pixel evaluations, else eager). Pixels outside the
     sample are 0.
     """
     n = maps.num_particles or 1
