@@ -105,11 +105,8 @@ def cmd_render(a) -> int:
     maps = _load_material(a.material, a).to(dtype=torch.float32, device=a.device)
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
-    groups: dict = {}
-    for i, v in enumerate(views):
-        groups.setdefault(tuple(v.resolution), []).append(i)
-    if len(groups) > 1:
-        raise InputError(f"views have {len(groups)} different resolutions", fix="render them in separate calls")
+    if len({tuple(v.resolution) for v in views}) > 1:
+        raise InputError("the views have different resolutions", fix="render them in separate calls")
     images = []
     with torch.no_grad():
         for v in tqdm(views, desc="render", unit="view", disable=not sys.stderr.isatty() or len(views) < 4):

@@ -25,6 +25,7 @@ from ..errors import InputError
 from ..observations import Observations
 from ..render.surface import PlanarSample
 from ..render.views import View
+from .jsonfile import read_json_object
 from .images import _read_raw, _to_rgb, linear_to_srgb, srgb_to_linear, write_exr, write_png
 
 __all__ = ["save_observations", "load_observations", "FORMAT_VERSION", "BUNDLE_FILE"]
@@ -136,15 +137,7 @@ def load_observations(directory) -> Observations:
     d = jf.parent
     if not jf.is_file():
         raise InputError(f"no {BUNDLE_FILE} in this folder", where=d, fix="point to a folder written by save_observations")
-    try:
-        doc = json.loads(jf.read_text())
-    except json.JSONDecodeError as e:
-        raise InputError(f"malformed JSON at line {e.lineno} column {e.colno} ({e.msg})", where=jf,
-                         fix="fix the JSON syntax or re-save the bundle") from None
-    except (OSError, UnicodeDecodeError) as e:
-        raise InputError(f"cannot read file ({e})", where=jf) from None
-    if not isinstance(doc, dict):
-        raise InputError("expected a JSON object at the top level", where=jf)
+    doc = read_json_object(jf, fix="fix the JSON syntax or re-save the bundle")
     for k in ("format_version", "surface", "views"):
         if k not in doc:
             raise InputError(f"missing key '{k}'", where=jf, fix="re-save the bundle with save_observations")

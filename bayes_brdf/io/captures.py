@@ -22,7 +22,6 @@ photo ``f"{idx[i]:02d}.png"`` with ``camera_pos[idx[i]]`` / ``light_pos[idx[i]]`
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
 import re
 from pathlib import Path
@@ -36,6 +35,7 @@ from ..render.cameras import RectifiedCamera
 from ..render.lights import PointLight
 from ..render.surface import PlanarSample
 from ..render.views import View
+from .jsonfile import read_json_object
 from .images import _check_gamma, _read_raw, _size2, _to_rgb, resample, resample_mask, srgb_to_linear
 
 __all__ = ["load_capture", "describe", "resample_observations", "FORMATS"]
@@ -107,19 +107,6 @@ def _read_text_rows(path: Path) -> list[list[float]]:
     if not rows:
         raise InputError("file is empty", where=path)
     return rows
-
-
-def _read_json(path: Path) -> dict:
-    try:
-        d = json.loads(path.read_text())
-    except json.JSONDecodeError as e:
-        raise InputError(f"malformed JSON at line {e.lineno} column {e.colno} ({e.msg})", where=path,
-                         fix="fix the JSON syntax") from None
-    except (OSError, UnicodeDecodeError) as e:
-        raise InputError(f"cannot read file ({e})", where=path) from None
-    if not isinstance(d, dict):
-        raise InputError("expected a JSON object at the top level", where=path)
-    return d
 
 
 def _need(d: dict, keys, path: Path):
@@ -228,7 +215,7 @@ def _load_materialgan(folder: Path, resolution, gamma) -> Observations:
 
 def _load_sdr(folder: Path, json_name: str, fmt: str, resolution, gamma) -> Observations:
     jf = folder / json_name
-    d = _read_json(jf)
+    d = read_json_object(jf)
     size = _size_cm(_need(d, ["image_size", "im_size"], jf), jf)
     cam_raw, light_raw = _need(d, "camera_pos", jf), _need(d, "light_pos", jf)
     power = _power(_need(d, "light_pow", jf), jf)

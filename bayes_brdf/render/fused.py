@@ -26,7 +26,6 @@ with ``alpha = r^2``, ``k = alpha / 2``, ``den = (n.h)^2 (alpha^2 - 1) + 1``.
 """
 from __future__ import annotations
 
-import math
 import os
 import warnings
 
@@ -36,7 +35,6 @@ from torch import Tensor
 from ..errors import InputError
 from .brdf import INV_PI, fresnel_weight, microfacet
 
-LN2 = math.log(2.0)
 
 
 def eager_kernel(kd: Tensor, r: Tensor, ks: Tensor, nl: Tensor, nv: Tensor, nh: Tensor, vh: Tensor,
@@ -64,7 +62,7 @@ def _spec_terms(r, nl, nv, nh):
 def _forward(kd, r, ks, nl, nv, nh, vh, scale, ks_factor: bool):
     kd, r, ks = (x.unsqueeze(2) for x in (kd, r, ks))
     s, *_ = _spec_terms(r, nl, nv, nh)
-    w = (((-5.55473) * vh - 6.98316) * vh * LN2).exp()
+    w = fresnel_weight(vh)
     q = (1 - ks) * INV_PI if ks_factor else INV_PI
     A = scale * nl
     return (A * (kd * q + s * (ks * (1 - w) + w))).sum(2)
@@ -182,7 +180,7 @@ def _view_terms(kd, r, ks, nl, nv, nh, vh, scale, ks_factor: bool):
     for li in range(nl.shape[0]):
         A = scale[li] * nl[li]
         s, a, a2, nh2, den, gl, gv = _spec_terms(r, nl[li], nv[0], nh[li])
-        w = (((-5.55473) * vh[li] - 6.98316) * vh[li] * LN2).exp()
+        w = fresnel_weight(vh[li])
         F = ks * (1 - w) + w
         out = out + A * (kd * q + s * F)
         dlns = 4 * r * a * (1 / a2 - 2 * nh2 / den) - r * ((1 - nl[li]) / gl + (1 - nv[0]) / gv)

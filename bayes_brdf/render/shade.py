@@ -70,6 +70,32 @@ def geometry_terms(normal: Tensor, g: GBuffer, eps: float = 1e-8):
     return dot(nw, l), dot(nw, v), dot(nw, hv), dot(v, hv)
 
 
+def _chunks(maps: SVBRDF, g: GBuffer, eps: float, chunk_views: int | None):
+    """Shared set-up of :func:`shade` and :func:`shade_loss`.
+
+    Returns ``(n, g, iterator)``; the iterator yields, per chunk of views
+    ``start:stop``, the kernel inputs ``(kd, r, ks, n.l, n.v, n.h, v.h, scale)``.
+    """
+    n = maps.num_particles or 1
+    dev, dt = maps.albedo.device, maps.albedo.dtype
+    if g.position.device != dev or g.position.dtype != dt:
+        g = g.to(dtype=dt, device=dev)
+    V, (h, w) = g.num_views, g.resolution
+    if chunk_views is None:
+        chunk_views = max(1, CHUNK_ELEMENTS // max(1, n * h * w * 3 * g.light_dir.shape[1]))
+    if chunk_views < 1:
+        raise InputError(f"chunk_views must be >= 1, got {chunk_views}")
+
+    def it():
+        for s in range(0, V, chunk_views):
+            e = min(V, s + chunk_views)
+            gc = g.views_slice(s, e) if V > chunk_views else g
+            kd, rough, ks, nrm = (lookup(t, gc) for t in (maps.albedo, maps.roughness, maps.specular, maps.normal))
+            yield s, e, (kd, rough, ks, *geometry_terms(nrm, gc, eps), gc.light_scale[None])
+
+    return n, g, it()
+
+
 def shade(maps: SVBRDF, g: GBuffer, *, ks_factor: bool = True, eps: float = 1e-8,
           chunk_views: int | None = None, backend: str = "auto", channels_last: bool = True) -> Tensor:
     """Radiance ``[n, V, H, W, 3]`` of ``maps`` under the views of ``g`` (channel-first ``[n, V, 3, H, W]`` with ``channels_last=False``).
@@ -82,24 +108,10 @@ def shade(maps: SVBRDF, g: GBuffer, *, ks_factor: bool = True, eps: float = 1e-8
     ``fused.AUTO_COMPILE_MIN_WORK`` pixel evaluations, else eager). Pixels outside the
     sample are 0.
     """
-    n = maps.num_particles or 1
-    dev, dt = maps.albedo.device, maps.albedo.dtype
-    if g.position.device != dev or g.position.dtype != dt:
-        g = g.to(dtype=dt, device=dev)
+    n, g, chunks = _chunks(maps, g, eps, chunk_views)
     V, (h, w) = g.num_views, g.resolution
-    if chunk_views is None:
-        chunk_views = max(1, CHUNK_ELEMENTS // max(1, n * h * w * 3 * g.light_dir.shape[1]))
-    if chunk_views < 1:
-        raise InputError(f"chunk_views must be >= 1, got {chunk_views}")
     kernel = fused.get_kernel(backend, n * V * h * w)
-    parts = []
-    for s in range(0, V, chunk_views):
-        gc = g.views_slice(s, min(V, s + chunk_views)) if V > chunk_views else g
-        kd, rough, ks, nrm = (lookup(t, gc) for t in (maps.albedo, maps.roughness, maps.specular, maps.normal))
-        nl, nv, nh, vh = geometry_terms(nrm, gc, eps)
-        img = kernel(kd, rough, ks, nl, nv, nh, vh, gc.light_scale[None], ks_factor)
-        img = img.expand(n, gc.num_views, 3, h, w)
-        parts.append(img)
+    parts = [kernel(*args, ks_factor).expand(n, e - s, 3, h, w) for s, e, args in chunks]
     img = parts[0] if len(parts) == 1 else torch.cat(parts, dim=1)
     return img.permute(0, 1, 3, 4, 2) if channels_last else img
 
@@ -162,26 +174,16 @@ def shade_loss(maps: SVBRDF, g: GBuffer, target: Tensor, weight: Tensor | float 
     """
     if kind not in ("l1", "l2"):
         raise InputError(f"unknown loss kind '{kind}'", fix="use l1 (Laplace) or l2 (Gaussian)")
-    n = maps.num_particles or 1
-    dev, dt = maps.albedo.device, maps.albedo.dtype
-    if g.position.device != dev or g.position.dtype != dt:
-        g = g.to(dtype=dt, device=dev)
+    n, g, chunks = _chunks(maps, g, eps, chunk_views)
     V, (h, w) = g.num_views, g.resolution
     if tuple(target.shape) != (V, h, w, 3):
         raise InputError(f"target images have shape {tuple(target.shape)}, expected {(V, h, w, 3)}")
+    dev, dt = maps.albedo.device, maps.albedo.dtype
     y = target.to(device=dev, dtype=dt).permute(0, 3, 1, 2)
     wt = torch.as_tensor(weight, device=dev, dtype=dt)
-    wt = wt.expand(V, h, w) if wt.dim() < 3 else wt
-    wt = wt[:, None]
-    if chunk_views is None:
-        chunk_views = max(1, CHUNK_ELEMENTS // max(1, n * h * w * 3 * g.light_dir.shape[1]))
+    wt = (wt.expand(V, h, w) if wt.dim() < 3 else wt)[:, None]
     kernel = fused.get_loss_kernel(backend, n * V * h * w)
     total = 0.0
-    for s in range(0, V, chunk_views):
-        e = min(V, s + chunk_views)
-        gc = g.views_slice(s, e) if V > chunk_views else g
-        kd, rough, ks, nrm = (lookup(t, gc) for t in (maps.albedo, maps.roughness, maps.specular, maps.normal))
-        nl, nv, nh, vh = geometry_terms(nrm, gc, eps)
-        total = total + kernel(kd, rough, ks, nl, nv, nh, vh, gc.light_scale[None], y[s:e].contiguous(),
-                               wt[s:e].contiguous(), ks_factor, kind == "l1")
+    for s, e, args in chunks:
+        total = total + kernel(*args, y[s:e].contiguous(), wt[s:e].contiguous(), ks_factor, kind == "l1")
     return total.expand(n) if total.dim() == 1 else total

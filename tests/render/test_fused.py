@@ -2,7 +2,7 @@
 import pytest
 import torch
 
-from bayes_brdf.render import SVBRDF, PlanarSample, PointLight, RectifiedCamera, View, collocated_views
+from bayes_brdf.render import SVBRDF, PlanarSample, PointLight, View, collocated_views
 from bayes_brdf.render.gbuffer import GBuffer
 from bayes_brdf.render.shade import shade, shade_loss
 

@@ -8,7 +8,6 @@ gamma 1/2.2, 8-bit.
 import math
 
 import numpy as np
-import pytest
 import torch
 from PIL import Image
 
