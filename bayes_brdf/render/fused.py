@@ -7,11 +7,15 @@ Inputs (all broadcastable, channel-first): ``kd, ks`` ``[n, V', 3, H', W']``,
 * :func:`eager_kernel` -- the plain-torch reference, built from the named BRDF
   terms in :mod:`.brdf`; autograd differentiates it.
 * :func:`compiled_kernel` -- the same function with hand-derived gradients
-  w.r.t. ``kd, r, ks`` (a custom autograd function), both directions fused by
-  ``torch.compile``. Used when the cosines do not depend on the particles (the
-  normals are held fixed, ``P = 1``) and nothing else needs gradients; any
-  other case falls back to the eager kernel. A test checks the two agree, and
+  w.r.t. ``kd, r, ks`` (custom autograd functions): on CPU the native C loop
+  nest of :mod:`.native`, elsewhere (CUDA, or no C compiler) both directions
+  fused by ``torch.compile``. Used when the cosines do not depend on the
+  particles (the normals are held fixed, ``P = 1``), the maps need no per-view
+  texture lookup, and nothing else needs gradients; any other case falls back
+  to the eager kernel. Tests check both implementations against eager, and
   gradcheck checks the analytic gradients.
+* :func:`compiled_loss` -- shading fused with the L1/L2 pixel loss, per
+  particle, without materialising the images (the samplers' hot path).
 
 Analytic gradients, with ``A = scale * (n.l)``, ``w`` the Fresnel weight,
 ``F = ks (1 - w) + w``, ``S = D G / (4 (n.l)(n.v))`` and ``q = (1 - ks) / pi``::
@@ -26,6 +30,7 @@ with ``alpha = r^2``, ``k = alpha / 2``, ``den = (n.h)^2 (alpha^2 - 1) + 1``.
 """
 from __future__ import annotations
 
+import functools
 import os
 import warnings
 
@@ -33,6 +38,7 @@ import torch
 from torch import Tensor
 
 from ..errors import InputError
+from . import native
 from .brdf import INV_PI, fresnel_weight, microfacet
 
 
@@ -107,13 +113,33 @@ class _FusedShade(torch.autograd.Function):
         return gkd, gr, gks, None, None, None, None, None, None
 
 
-def compiled_kernel(kd, r, ks, nl, nv, nh, vh, scale, ks_factor: bool = True) -> Tensor:
+def _route(kd, r, ks, nl, nv, nh, vh, scale, torch_compile: bool = True) -> str:
+    """Which implementation a fused call can use: ``"native"`` (C, CPU), ``"compiled"`` or ``"eager"``.
+
+    The fused kernels need the cosines shared by all particles (normals held
+    fixed, ``P = 1``), no gradient w.r.t. geometry, and maps that need no
+    per-view texture lookup (``V' = 1``). The native kernel also takes ``1 x 1``
+    constant maps; the ``torch.compile`` one only full-resolution maps.
+    """
+    if any(t.requires_grad for t in (nl, nv, nh, vh, scale)) or nl.shape[0] != 1:
+        return "eager"
+    hw = tuple(nl.shape[-2:])
+    if any(t.shape[1] != 1 or tuple(t.shape[-2:]) not in (hw, (1, 1)) for t in (kd, r, ks)):
+        return "eager"
+    if nl.shape[2] <= native.MAX_LIGHTS and native.available(kd):
+        return "native"
+    full = all(tuple(t.shape[-2:]) == hw for t in (kd, r, ks))
+    return "compiled" if full and torch_compile else "eager"
+
+
+def compiled_kernel(kd, r, ks, nl, nv, nh, vh, scale, ks_factor: bool = True, torch_compile: bool = True) -> Tensor:
     """Fused kernel with analytic gradients w.r.t. ``kd, r, ks`` (falls back to eager when it cannot apply)."""
-    geometry_grad = any(t.requires_grad for t in (nl, nv, nh, vh, scale))
-    full = all(t.shape[1] == 1 and t.shape[-2:] == nl.shape[-2:] for t in (kd, r, ks))
-    if geometry_grad or nl.shape[0] != 1 or not full:
-        return eager_kernel(kd, r, ks, nl, nv, nh, vh, scale, ks_factor)
-    return _FusedShade.apply(kd, r, ks, nl, nv, nh, vh, scale, ks_factor)
+    route = _route(kd, r, ks, nl, nv, nh, vh, scale, torch_compile)
+    if route == "native":
+        return native.NativeShade.apply(kd, r, ks, nl, nv, nh, vh, scale, ks_factor)
+    if route == "compiled":
+        return _FusedShade.apply(kd, r, ks, nl, nv, nh, vh, scale, ks_factor)
+    return eager_kernel(kd, r, ks, nl, nv, nh, vh, scale, ks_factor)
 
 
 _COMPILE_OK: bool | None = None
@@ -140,19 +166,23 @@ def compile_available() -> bool:
 AUTO_COMPILE_MIN_WORK = 2**21
 
 
-def get_kernel(backend: str, work: int | None = None):
-    """The kernel for ``backend``: ``"eager"``, ``"compiled"`` or ``"auto"``.
+def get_kernel(backend: str, work: int | None = None, loss: bool = False):
+    """The kernel for ``backend``: ``"eager"``, ``"compiled"`` or ``"auto"`` (``loss=True``: the fused loss).
 
-    ``"auto"`` picks the compiled kernel when ``torch.compile`` works here and
-    the call is large enough (``work >= AUTO_COMPILE_MIN_WORK``), else eager.
+    ``"compiled"`` uses the native C kernel on CPU when it builds, else
+    ``torch.compile``. ``"auto"`` uses the native kernel whenever it applies
+    (it is compiled once per machine and cached), and ``torch.compile`` only
+    when the call is large enough to pay for compiling
+    (``work >= AUTO_COMPILE_MIN_WORK`` pixel evaluations); otherwise eager.
     """
     if backend == "eager":
-        return eager_kernel
+        return eager_loss if loss else eager_kernel
+    fn = compiled_loss if loss else compiled_kernel
     if backend == "compiled":
-        return compiled_kernel
+        return fn
     if backend == "auto":
         big = work is None or work >= AUTO_COMPILE_MIN_WORK
-        return compiled_kernel if big and compile_available() else eager_kernel
+        return functools.partial(fn, torch_compile=big and compile_available())
     raise InputError(f"unknown shading backend '{backend}'", fix="use auto, eager or compiled")
 
 
@@ -246,14 +276,18 @@ class _FusedLoss(torch.autograd.Function):
         return (gkd, gr, gks) + (None,) * 9
 
 
-def compiled_loss(kd, r, ks, nl, nv, nh, vh, scale, y, wgt, ks_factor: bool = True, l1: bool = True) -> Tensor:
+def compiled_loss(kd, r, ks, nl, nv, nh, vh, scale, y, wgt, ks_factor: bool = True, l1: bool = True,
+                  torch_compile: bool = True) -> Tensor:
     """Fused shading + loss with analytic gradients w.r.t. ``kd, r, ks`` (eager fallback as :func:`compiled_kernel`)."""
-    full = all(t.shape[1] == 1 and t.shape[-2:] == nl.shape[-2:] for t in (kd, r, ks))
-    if any(t.requires_grad for t in (nl, nv, nh, vh, scale, y, wgt)) or nl.shape[0] != 1 or not full:
-        return eager_loss(kd, r, ks, nl, nv, nh, vh, scale, y, wgt, ks_factor, l1)
-    return _FusedLoss.apply(kd, r, ks, nl, nv, nh, vh, scale, y, wgt, ks_factor, l1)
+    route = "eager" if y.requires_grad or wgt.requires_grad else _route(kd, r, ks, nl, nv, nh, vh, scale,
+                                                                           torch_compile)
+    if route == "native":
+        return native.NativeLoss.apply(kd, r, ks, nl, nv, nh, vh, scale, y, wgt, ks_factor, l1)
+    if route == "compiled":
+        return _FusedLoss.apply(kd, r, ks, nl, nv, nh, vh, scale, y, wgt, ks_factor, l1)
+    return eager_loss(kd, r, ks, nl, nv, nh, vh, scale, y, wgt, ks_factor, l1)
 
 
 def get_loss_kernel(backend: str, work: int | None = None):
     """The fused loss for ``backend`` (see :func:`get_kernel`)."""
-    return {eager_kernel: eager_loss, compiled_kernel: compiled_loss}[get_kernel(backend, work)]
+    return get_kernel(backend, work, loss=True)

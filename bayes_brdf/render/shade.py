@@ -75,6 +75,8 @@ def _chunks(maps: SVBRDF, g: GBuffer, eps: float, chunk_views: int | None):
 
     Returns ``(n, g, iterator)``; the iterator yields, per chunk of views
     ``start:stop``, the kernel inputs ``(kd, r, ks, n.l, n.v, n.h, v.h, scale)``.
+    With normals held fixed (no particle dimension, no gradient) the cosines
+    are computed once and kept on the G-buffer until the normal map changes.
     """
     n = maps.num_particles or 1
     dev, dt = maps.albedo.device, maps.albedo.dtype
@@ -86,12 +88,24 @@ def _chunks(maps: SVBRDF, g: GBuffer, eps: float, chunk_views: int | None):
     if chunk_views < 1:
         raise InputError(f"chunk_views must be >= 1, got {chunk_views}")
 
+    nrm = maps.normal
+    fixed_normals = nrm.dim() == 3 and not nrm.requires_grad
+    memo = g.__dict__.setdefault("_cosines", {})  # {(start, stop, eps): (normal map, its version, cosines)}
+
+    def cosines(s, e, gc):
+        if not fixed_normals:  # per-particle or differentiated normals: recomputed every call
+            return geometry_terms(lookup(nrm, gc), gc, eps)
+        hit = memo.get((s, e, eps))
+        if hit is None or hit[0] is not nrm or hit[1] != nrm._version:
+            hit = memo[(s, e, eps)] = (nrm, nrm._version, geometry_terms(lookup(nrm, gc), gc, eps))
+        return hit[2]
+
     def it():
         for s in range(0, V, chunk_views):
             e = min(V, s + chunk_views)
             gc = g.views_slice(s, e) if V > chunk_views else g
-            kd, rough, ks, nrm = (lookup(t, gc) for t in (maps.albedo, maps.roughness, maps.specular, maps.normal))
-            yield s, e, (kd, rough, ks, *geometry_terms(nrm, gc, eps), gc.light_scale[None])
+            kd, rough, ks = (lookup(t, gc) for t in (maps.albedo, maps.roughness, maps.specular))
+            yield s, e, (kd, rough, ks, *cosines(s, e, gc), gc.light_scale[None])
 
     return n, g, it()
 
