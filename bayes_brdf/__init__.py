@@ -1,7 +1,11 @@
 """bayes-brdf: Bayesian SVBRDF acquisition with uncertainty and capture guidance."""
-from . import io, materials, render
+from . import io, materials, models, render, samplers
 from .errors import InputError
+from .inference import infer
+from .models import priors
 from .observations import Observations
+from .posterior import Posterior
 
 __version__ = "0.1.0"
-__all__ = ["render", "io", "materials", "Observations", "InputError", "__version__"]
+__all__ = ["render", "io", "materials", "models", "priors", "samplers", "infer", "Posterior", "Observations",
+           "InputError", "__version__"]

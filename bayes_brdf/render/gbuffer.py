@@ -122,6 +122,12 @@ class GBuffer:
         return replace(self, **{f.name: getattr(self, f.name)[start:stop] for f in fields(self)
                                 if isinstance(getattr(self, f.name), Tensor)})
 
+    def views_index(self, idx) -> "GBuffer":
+        """The G-buffer of the views ``idx`` (a list or tensor of indices), e.g. a minibatch of views."""
+        t = torch.as_tensor(idx, dtype=torch.long, device=self.position.device)
+        return replace(self, **{f.name: getattr(self, f.name)[t] for f in fields(self)
+                                if isinstance(getattr(self, f.name), Tensor)})
+
     def texel_index(self, resolution) -> Tensor:
         """Footprint: flat index ``[V, H, W]`` of the nearest texel of an ``(R_h, R_w)`` map (-1 if invalid).
 

@@ -1,0 +1,71 @@
+"""``bb.infer``: a model, observations and a sampler in, a :class:`Posterior` out."""
+from __future__ import annotations
+
+import torch
+
+from .errors import InputError
+from .models.data import ModelData
+from .models.material import MaterialModel, from_preset
+from .observations import Observations
+from .posterior import Posterior
+from .potential import Potential
+from .presets import load_preset
+from .samplers import make_sampler
+from .samplers.driver import run
+
+
+def resolve_model(model):
+    """A model from a callable, a built-in name / preset path (``models/*.toml``) or a preset table."""
+    if isinstance(model, dict):
+        return from_preset(model)
+    if isinstance(model, str):
+        return from_preset(load_preset("models", model))
+    if not callable(model):
+        raise InputError(f"a model must be a Pyro model function or a preset, got {type(model).__name__}")
+    return model
+
+
+def infer(model, observations, sampler="spos", *, seed: int = 0, particles: int | None = None,
+          steps: int | None = None, params: dict | None = None, checkpoint=None, progress: bool = True,
+          dtype=torch.float32, device=None, callbacks=()) -> Posterior:
+    """Sample the posterior of ``model`` given ``observations`` with ``sampler``.
+
+    Args:
+        model: a Pyro model ``model(data)`` (a built-in from :mod:`bayes_brdf.models`, a user's
+            function, or a preset name/path from ``models/``).
+        observations: :class:`Observations` (or a :class:`ModelData`).
+        sampler: a name, a preset path (``samplers/*.toml``), a table or a :class:`Sampler`.
+        seed: same seed, same result.
+        particles, steps, params: override the preset's run size and hyper-parameters.
+        checkpoint: a file to checkpoint to and resume from.
+        device: where to run; by default the observations' device.
+
+    Example:
+        >>> import bayes_brdf as bb
+        >>> from bayes_brdf.render import SVBRDF, PlanarSample, collocated_views
+        >>> from bayes_brdf.render.shade import render
+        >>> views = collocated_views(3, 3.0, camera="rectified", resolution=8)
+        >>> obs = bb.Observations(views, render(SVBRDF.constant(0.5, 0.3), views, PlanarSample(2.0))[0], PlanarSample(2.0))
+        >>> post = bb.infer(bb.models.homogeneous(albedo="gray"), obs, "spos", steps=300, progress=False)
+        >>> abs(float(post.mean("albedo")) - 0.5) < 0.05
+        True
+    """
+    model = resolve_model(model)
+    if isinstance(observations, ModelData):
+        data = observations
+    elif isinstance(observations, Observations):
+        data = ModelData.from_observations(observations, dtype=dtype, device=device)
+    else:
+        raise InputError(f"observations must be Observations, got {type(observations).__name__}",
+                         fix="bb.io.load_capture(path).observations")
+    smp, cfg = make_sampler(sampler, params=params,
+                            run={k: v for k, v in (("particles", particles), ("steps", steps)) if v is not None})
+    pot = Potential(model, (data,))
+    res = run(smp, pot, seed=seed, checkpoint=checkpoint, progress=progress, callbacks=callbacks, **cfg.run_kwargs())
+    with torch.no_grad():
+        energies = pot.energy(res.z, jacobian=False)
+    meta = {"sampler": smp.name, "params": smp.params(), "run": vars(cfg), "seed": seed,
+            "seconds": res.seconds, "evaluations": res.evaluations, "steps": res.steps,
+            "model": model.to_dict() if isinstance(model, MaterialModel) else getattr(model, "__name__", str(model)),
+            "observations": observations.meta if isinstance(observations, Observations) else {}}
+    return Posterior(pot.to_constrained(res.z), energies, z=res.z, meta=meta, potential=pot, model=model)

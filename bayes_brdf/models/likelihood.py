@@ -1,0 +1,123 @@
+"""The likelihood of Eq. (2): observed pixels ~ Laplace(rendered, sigma) (or Gaussian), as a Pyro distribution.
+
+:class:`RenderedImages` is a distribution over the ``[V, H, W, 3]`` images
+whose ``log_prob`` calls the fused ``shade_loss`` (shading and the L1/L2 loss
+in one pass, analytic gradients), so a model's likelihood never materialises
+the ``[n, V, H, W, 3]`` renders. Its batch shape is the particle dimension of
+the maps. :func:`observe` is the one line a material model ends with.
+"""
+from __future__ import annotations
+
+import math
+
+import pyro
+import torch
+from pyro.distributions import TorchDistribution
+from torch.distributions import constraints
+
+from ..errors import InputError
+from ..render.maps import SVBRDF
+from ..render.shade import shade, shade_loss
+from .data import ModelData
+
+KINDS = ("laplace", "gaussian")
+
+
+class RenderedImages(TorchDistribution):
+    """``y ~ Laplace(R(x; theta), sigma)`` per observed pixel and channel (``kind="gaussian"``: Normal).
+
+    Args:
+        maps: the material; a leading particle dimension ``n`` becomes the batch shape ``[n]``.
+        data: the :class:`ModelData` (G-buffer, pixel weights, likelihood scale).
+        sigma: the noise scale ``sigma_err`` in the images' units (Eq. 2).
+        kind: ``"laplace"`` (the paper's L1 likelihood) or ``"gaussian"``.
+        backend: shading backend (see :func:`bayes_brdf.render.shade.shade`).
+
+    ``log_prob(y)`` is the exact normalised log-density summed over weighted
+    pixels: ``-sum w |y - R| / sigma - sum w log(2 sigma)`` for Laplace.
+    """
+
+    arg_constraints = {}
+    support = constraints.real
+
+    def __init__(self, maps: SVBRDF, data: ModelData, sigma: float = 0.01, kind: str = "laplace",
+                 backend: str = "auto", validate_args=None):
+        if kind not in KINDS:
+            raise InputError(f"unknown likelihood '{kind}'", fix=f"use one of {', '.join(KINDS)}")
+        if not sigma > 0:
+            raise InputError(f"sigma must be > 0, got {sigma}", fix="sigma_err is the noise scale in image units, e.g. 0.01")
+        self.maps, self.data, self.sigma, self.kind, self.backend = maps, data, float(sigma), kind, backend
+        n = maps.num_particles
+        super().__init__(torch.Size([] if n is None else [n]), data.images.shape, validate_args=False)
+
+    def expand(self, batch_shape, _instance=None):
+        batch_shape = torch.Size(batch_shape)
+        if batch_shape == self.batch_shape:
+            return self
+        n = self.maps.num_particles
+        if n is None and len(batch_shape) >= 1 and all(s == 1 for s in batch_shape[1:]):
+            return _Expanded(self, batch_shape)
+        raise InputError(f"the likelihood's particle dimension {tuple(self.batch_shape)} does not match the "
+                         f"plates {tuple(batch_shape)}", fix="keep the particle dimension of the sampled maps")
+
+    def _norm_const(self) -> torch.Tensor:
+        per = math.log(2 * self.sigma) if self.kind == "laplace" else 0.5 * math.log(2 * math.pi * self.sigma ** 2)
+        return 3 * self.data.weight.sum() * per
+
+    def log_prob(self, value):
+        d = self.data
+        if self.kind == "laplace":
+            e = shade_loss(self.maps, d.gbuffer, value, d.weight / self.sigma, kind="l1", backend=self.backend)
+        else:
+            e = shade_loss(self.maps, d.gbuffer, value, d.weight / (2 * self.sigma ** 2), kind="l2",
+                           backend=self.backend)
+        lp = -(e + self._norm_const()) * d.scale
+        return lp if self.maps.num_particles is not None else lp[0]
+
+    def mean_images(self):
+        """The noiseless renders ``[*batch, V, H, W, 3]``."""
+        img = shade(self.maps, self.data.gbuffer, backend=self.backend)
+        return img if self.maps.num_particles is not None else img[0]
+
+    def sample(self, sample_shape=torch.Size()):
+        with torch.no_grad():
+            mu = self.mean_images().expand(torch.Size(sample_shape) + self.batch_shape + self.event_shape)
+            noise = (torch.distributions.Laplace if self.kind == "laplace" else torch.distributions.Normal)(
+                torch.zeros_like(mu), torch.full_like(mu, self.sigma)).sample()
+            w = self.data.weight[..., None] > 0
+            return torch.where(w, mu + noise, mu)
+
+
+class _Expanded(TorchDistribution):
+    """A particle-free likelihood broadcast over a particle plate (the same value for every particle)."""
+
+    arg_constraints = {}
+    support = constraints.real
+
+    def __init__(self, base: RenderedImages, batch_shape):
+        self.base = base
+        super().__init__(batch_shape, base.event_shape, validate_args=False)
+
+    def log_prob(self, value):
+        return self.base.log_prob(value).expand(self.batch_shape)
+
+    def sample(self, sample_shape=torch.Size()):
+        return self.base.sample().expand(torch.Size(sample_shape) + self.batch_shape + self.event_shape)
+
+
+def observe(data: ModelData, maps: SVBRDF, *, sigma: float = 0.01, kind: str = "laplace", name: str = "images",
+            backend: str = "auto"):
+    """Condition ``maps`` on the observed images of ``data`` (Eq. 2): the last line of a material model.
+
+    Example:
+        >>> import pyro, pyro.distributions as dist
+        >>> from bayes_brdf.render import SVBRDF
+        >>> def my_model(data):
+        ...     rho = pyro.sample("albedo", dist.Uniform(0.0, 1.0))
+        ...     maps = SVBRDF.constant(albedo=0.0, roughness=0.3)
+        ...     maps.albedo = rho[..., None, None, None].expand(*rho.shape, 3, 1, 1)
+        ...     observe(data, maps)
+    """
+    if not isinstance(data, ModelData):
+        raise InputError(f"observe() needs the ModelData the model was called with, got {type(data).__name__}")
+    return pyro.sample(name, RenderedImages(maps, data, sigma, kind, backend), obs=data.images)

@@ -1,0 +1,188 @@
+"""Priors for material parameters: a box (default), a Gaussian around a value, smoothness on maps.
+
+A :class:`Prior` says how each element of one parameter is distributed within
+the parameter's valid range ``[low, high]``; a :class:`Smoothness` adds a
+``pyro.factor`` coupling neighbouring texels of a map. Any user-written Pyro
+distribution (with ``.to_event()`` over the map's dimensions) or
+``pyro.factor`` in a user's own model works as well: these are conveniences.
+
+Example:
+    >>> import torch
+    >>> p = gaussian(0.1, 0.05)          # the paper's low-roughness prior (Fig. 5)
+    >>> d = p.distribution(torch.Size([1, 4, 4]), 0.05, 1.0)
+    >>> d.event_shape, bool((d.sample() >= 0.05).all())
+    (torch.Size([1, 4, 4]), True)
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import pyro
+import torch
+from pyro.distributions import TorchDistribution
+from torch.distributions import constraints
+
+from ..errors import InputError
+
+
+class Box(TorchDistribution):
+    """Uniform on ``[low, high]`` with the density ``1 / (high - low)`` on the closed interval.
+
+    (``torch``'s ``Uniform`` gives ``-inf`` at ``x == high``, which float32
+    sigmoids reach; a sampler would then see an infinite energy.)
+    """
+
+    arg_constraints = {}
+    has_rsample = True
+
+    def __init__(self, low, high, validate_args=None):
+        self.low, self.high = torch.broadcast_tensors(torch.as_tensor(low, dtype=torch.get_default_dtype()),
+                                                      torch.as_tensor(high, dtype=torch.get_default_dtype()))
+        super().__init__(self.low.shape, validate_args=False)
+
+    @constraints.dependent_property(is_discrete=False, event_dim=0)
+    def support(self):
+        return constraints.interval(self.low, self.high)
+
+    def expand(self, batch_shape, _instance=None):
+        return Box(self.low.expand(batch_shape), self.high.expand(batch_shape))
+
+    def rsample(self, sample_shape=torch.Size()):
+        shape = torch.Size(sample_shape) + self.batch_shape
+        u = torch.rand(shape, dtype=self.low.dtype, device=self.low.device)
+        return self.low + u * (self.high - self.low)
+
+    def log_prob(self, value):
+        return (-(self.high - self.low).log()).expand(torch.broadcast_shapes(value.shape, self.batch_shape))
+
+
+class TruncatedNormal(TorchDistribution):
+    """``Normal(loc, scale)`` restricted to ``[low, high]`` (exact, normalised; inverse-CDF sampling)."""
+
+    arg_constraints = {}
+    has_rsample = True
+
+    def __init__(self, loc, scale, low, high, validate_args=None):
+        t = lambda x: torch.as_tensor(x, dtype=torch.get_default_dtype())  # noqa: E731
+        self.loc, self.scale, self.low, self.high = torch.broadcast_tensors(t(loc), t(scale), t(low), t(high))
+        a, b = (self.low - self.loc) / self.scale, (self.high - self.loc) / self.scale
+        self._ca, self._cb = torch.special.ndtr(a), torch.special.ndtr(b)
+        self._logz = (self._cb - self._ca).clamp_min(1e-300).log() + self.scale.log() + 0.5 * math.log(2 * math.pi)
+        super().__init__(self.loc.shape, validate_args=False)
+
+    @constraints.dependent_property(is_discrete=False, event_dim=0)
+    def support(self):
+        return constraints.interval(self.low, self.high)
+
+    def expand(self, batch_shape, _instance=None):
+        e = lambda x: x.expand(batch_shape)  # noqa: E731
+        return TruncatedNormal(e(self.loc), e(self.scale), e(self.low), e(self.high))
+
+    def rsample(self, sample_shape=torch.Size()):
+        shape = torch.Size(sample_shape) + self.batch_shape
+        u = torch.rand(shape, dtype=self.loc.dtype, device=self.loc.device)
+        p = (self._ca + u * (self._cb - self._ca)).clamp(1e-12, 1 - 1e-12)
+        return (self.loc + self.scale * torch.special.ndtri(p)).clamp(self.low, self.high)
+
+    def log_prob(self, value):
+        return -0.5 * ((value - self.loc) / self.scale) ** 2 - self._logz
+
+
+@dataclass(frozen=True)
+class Prior:
+    """Independent per-element prior of one parameter on its range ``[low, high]``."""
+
+    kind: str = "uniform"
+    mean: float | None = None
+    std: float | None = None
+
+    def __post_init__(self):
+        if self.kind not in ("uniform", "gaussian"):
+            raise InputError(f"unknown prior kind '{self.kind}'", fix="use uniform or gaussian")
+        if self.kind == "gaussian" and not (self.mean is not None and self.std is not None and self.std > 0):
+            raise InputError(f"a gaussian prior needs a mean and a std > 0, got mean={self.mean}, std={self.std}")
+
+    def distribution(self, shape, low: float, high: float, *, dtype=None, device=None):
+        """The distribution of a whole parameter of ``shape`` (all dims are event dims)."""
+        kw = dict(dtype=dtype or torch.get_default_dtype(), device=device)
+        lo, hi = torch.full(tuple(shape), float(low), **kw), torch.full(tuple(shape), float(high), **kw)
+        if self.kind == "uniform":
+            d = Box(lo, hi)
+        else:
+            d = TruncatedNormal(torch.full_like(lo, self.mean), torch.full_like(lo, self.std), lo, hi)
+        return d.to_event(len(shape))
+
+    def to_dict(self) -> dict:
+        return {k: v for k, v in (("kind", self.kind), ("mean", self.mean), ("std", self.std)) if v is not None}
+
+
+def uniform() -> Prior:
+    """The default: uniform over the parameter's whole valid range."""
+    return Prior("uniform")
+
+
+def gaussian(mean: float, std: float) -> Prior:
+    """A Gaussian around ``mean`` (truncated to the valid range), e.g. the paper's low-roughness prior."""
+    return Prior("gaussian", float(mean), float(std))
+
+
+@dataclass(frozen=True)
+class Smoothness:
+    """A smoothness prior on a map ``[n, C, H, W]``: ``kind="tv"`` (total variation) or ``"gmrf"``.
+
+    Adds ``log p = -weight * sum |dx|`` (TV) or ``-weight / 2 * sum dx^2`` (Gaussian
+    Markov random field) over horizontal and vertical neighbour differences.
+    """
+
+    kind: str = "tv"
+    weight: float = 1.0
+
+    def __post_init__(self):
+        if self.kind not in ("tv", "gmrf"):
+            raise InputError(f"unknown smoothness kind '{self.kind}'", fix="use tv or gmrf")
+        if not self.weight >= 0:
+            raise InputError(f"smoothness weight must be >= 0, got {self.weight}")
+
+    def log_prob(self, x: torch.Tensor) -> torch.Tensor:
+        """``[...]`` over the leading dims of ``x [..., C, H, W]``."""
+        dx, dy = x[..., :, 1:] - x[..., :, :-1], x[..., 1:, :] - x[..., :-1, :]
+        f = (lambda d: d.abs()) if self.kind == "tv" else (lambda d: 0.5 * d * d)
+        return -self.weight * (f(dx).flatten(-3).sum(-1) + f(dy).flatten(-3).sum(-1))
+
+    def add(self, name: str, x: torch.Tensor):
+        """``pyro.factor`` named ``<name>_smoothness`` on map ``x``."""
+        if self.weight > 0:
+            pyro.factor(f"{name}_smoothness", self.log_prob(x))
+
+    def to_dict(self) -> dict:
+        return {"kind": self.kind, "weight": self.weight}
+
+
+def tv(weight: float = 1.0) -> Smoothness:
+    """Total-variation smoothness prior."""
+    return Smoothness("tv", float(weight))
+
+
+def gmrf(weight: float = 1.0) -> Smoothness:
+    """Gaussian Markov random field smoothness prior."""
+    return Smoothness("gmrf", float(weight))
+
+
+def from_dict(d) -> Prior | Smoothness | None:
+    """A prior from a preset table: ``{kind = "gaussian", mean = 0.1, std = 0.05}`` etc."""
+    if d is None or isinstance(d, (Prior, Smoothness)):
+        return d
+    if not isinstance(d, dict) or "kind" not in d:
+        raise InputError(f"a prior must be a table with a 'kind', got {d!r}")
+    k = d["kind"]
+    allowed = {"uniform": {"kind"}, "gaussian": {"kind", "mean", "std"}, "tv": {"kind", "weight"},
+               "gmrf": {"kind", "weight"}}
+    if k not in allowed:
+        raise InputError(f"unknown prior kind '{k}'", fix="use uniform, gaussian, tv or gmrf")
+    extra = set(d) - allowed[k]
+    if extra:
+        raise InputError(f"unknown key(s) {sorted(extra)} in a {k} prior", fix=f"allowed: {sorted(allowed[k])}")
+    if k in ("tv", "gmrf"):
+        return Smoothness(k, float(d.get("weight", 1.0)))
+    return Prior(k, d.get("mean"), d.get("std"))

@@ -1,0 +1,141 @@
+"""Posterior: the particles a sampler left, per latent site in constrained space, with summaries and files.
+
+``mean``/``std`` are Eq. (9) (``std`` is the sample standard deviation over the
+``n`` particles, with Bessel's correction); ``map`` is Eq. (7): the particle of
+highest target ``f(x)`` (lowest energy), optionally refined with Adam.
+Files are safetensors (tensors) with the metadata as JSON inside: no pickle.
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import torch
+from torch import Tensor
+
+from .errors import InputError
+
+FORMAT = "bayes-brdf-posterior/1"
+
+
+class Posterior:
+    """Samples ``{site: [n, ...]}`` (constrained) with their energies ``[n]`` (``-log f(x)``, Eq. 3).
+
+    Example:
+        >>> post = Posterior({"roughness": torch.tensor([[0.2], [0.4]])}, torch.tensor([1.0, 0.5]))
+        >>> post.mean("roughness").tolist(), post.map()["roughness"].tolist()
+        ([0.30000001192092896], [0.4000000059604645])
+    """
+
+    def __init__(self, particles: dict[str, Tensor], energies: Tensor, *, z: Tensor | None = None,
+                 meta: dict | None = None, potential=None, model=None):
+        if not particles:
+            raise InputError("a posterior needs at least one site")
+        ns = {v.shape[0] for v in particles.values()}
+        if len(ns) != 1 or energies.shape != (ns.copy().pop(),):
+            raise InputError(f"sites and energies disagree on the particle count: {sorted(ns)} vs {tuple(energies.shape)}")
+        self.particles = {k: v.detach() for k, v in particles.items()}
+        self.energies = energies.detach()
+        self.z = None if z is None else z.detach()
+        self.meta = dict(meta or {})
+        self.potential, self.model = potential, model
+
+    # ------------------------------------------------------------------ summaries
+    @property
+    def sites(self) -> list[str]:
+        return list(self.particles)
+
+    @property
+    def num_particles(self) -> int:
+        return self.energies.shape[0]
+
+    def _site(self, site):
+        if site not in self.particles:
+            raise InputError(f"no site '{site}' in the posterior", fix=f"sites: {', '.join(self.particles)}")
+        return self.particles[site]
+
+    def mean(self, site: str | None = None):
+        """Posterior mean of ``site`` (``[...]``), or ``{site: mean}`` for all sites."""
+        if site is None:
+            return {k: self.mean(k) for k in self.particles}
+        return self._site(site).mean(0)
+
+    def std(self, site: str | None = None):
+        """Parameter-space uncertainty (Eq. 9) of ``site``, or ``{site: std}`` for all sites."""
+        if site is None:
+            return {k: self.std(k) for k in self.particles}
+        x = self._site(site)
+        return x.std(0) if x.shape[0] > 1 else torch.zeros_like(x[0])
+
+    def best(self) -> int:
+        """Index of the particle with the highest target ``f(x)``."""
+        return int(torch.argmin(self.energies))
+
+    def map(self, refine_steps: int = 0, lr: float = 0.01) -> dict[str, Tensor]:
+        """MAP estimate (Eq. 7): the best particle, then ``refine_steps`` of Adam on ``-log f`` (optional)."""
+        i = self.best()
+        if refine_steps <= 0:
+            return {k: v[i] for k, v in self.particles.items()}
+        if self.potential is None or self.z is None:
+            raise InputError("MAP refinement needs the model: this posterior was loaded from a file",
+                             fix="use refine_steps=0, or refine with bb.infer(...) in the same session")
+        z = self.z[i:i + 1].clone().requires_grad_(True)
+        opt = torch.optim.Adam([z], lr=lr)
+        for _ in range(refine_steps):
+            opt.zero_grad()
+            u, g = self.potential.value_and_grad(z.detach(), jacobian=False)
+            z.grad = g
+            opt.step()
+        return {k: v[0] for k, v in self.potential.to_constrained(z.detach()).items()}
+
+    def maps(self, which="mean"):
+        """The model's SVBRDF for ``which`` = ``"mean"``, ``"map"``, a particle index, or ``"all"`` (``[n, ...]`` maps)."""
+        if self.model is None or not hasattr(self.model, "maps"):
+            raise InputError("this posterior has no material model attached", fix="pass model= or use bb.infer")
+        if which == "all":
+            return self.model.maps(self.particles)
+        vals = self.mean() if which == "mean" else self.map() if which == "map" else \
+            {k: v[int(which)] for k, v in self.particles.items()}
+        return self.model.maps({k: v[None] for k, v in vals.items()}).particle(0)
+
+    # ------------------------------------------------------------------ files
+    def save(self, path) -> Path:
+        """Write ``path`` (``.safetensors``): particles, energies, unconstrained ``z`` and the metadata as JSON."""
+        from safetensors.torch import save_file
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        t = {f"site/{k}": v.contiguous().cpu() for k, v in self.particles.items()}
+        t["energies"] = self.energies.contiguous().cpu()
+        if self.z is not None:
+            t["z"] = self.z.contiguous().cpu()
+        save_file(t, str(path), metadata={"format": FORMAT, "meta": json.dumps(self.meta, default=str)})
+        return path
+
+    @classmethod
+    def load(cls, path) -> "Posterior":
+        """Read a file written by :meth:`save` (one-line error when it is not one)."""
+        from safetensors import safe_open
+        path = Path(path)
+        if not path.is_file():
+            raise InputError("no such posterior file", where=path)
+        try:
+            with safe_open(str(path), framework="pt") as f:
+                md = f.metadata() or {}
+                t = {k: f.get_tensor(k) for k in f.keys()}
+        except Exception as e:  # noqa: BLE001
+            raise InputError(f"unreadable posterior file ({type(e).__name__})", where=path) from None
+        if md.get("format") != FORMAT:
+            raise InputError("not a bayes-brdf posterior file", where=path)
+        parts = {k[5:]: v for k, v in t.items() if k.startswith("site/")}
+        return cls(parts, t["energies"], z=t.get("z"), meta=json.loads(md.get("meta", "{}")))
+
+    def to_arviz(self):
+        """An ``arviz.InferenceData`` with one chain whose draws are the particles (and ``energy`` in sample_stats)."""
+        import arviz as az
+        post = {k: v.cpu().numpy()[None] for k, v in self.particles.items()}
+        return az.from_dict(posterior=post, sample_stats={"energy": self.energies.cpu().numpy()[None]},
+                            attrs={k: json.dumps(v, default=str) for k, v in self.meta.items()})
+
+    def __repr__(self):
+        shapes = ", ".join(f"{k}{list(v.shape[1:])}" for k, v in self.particles.items())
+        return f"Posterior({self.num_particles} particles: {shapes})"

@@ -1,0 +1,249 @@
+"""The bridge from a Pyro model to a batched potential ``U(z)`` on unconstrained space.
+
+A :class:`Potential` turns any Pyro model function into what every sampler
+needs: for ``n`` particles ``z`` of shape ``[n, D]`` (unconstrained, all latent
+sites packed per particle, one row per particle), the energies ``U(z)`` ``[n]``
+and their gradients ``[n, D]``, from ONE run of the model under a particle
+plate (no Python loop over particles).
+
+``U(z) = -log p(x(z), y) - log|det dx/dz|`` where ``x = to_constrained(z)``
+maps each site through Pyro's ``biject_to(site.support)``. With
+``jacobian=False`` the log-Jacobian is left out: then ``U`` is minus the log of
+the paper's target ``f(x)`` (Eq. 3) in constrained space, which is what point
+estimates (Eq. 7) maximise.
+
+Models must be *particle-vectorisable*: under ``pyro.plate("particles", n)``
+every latent site gets a leading particle dimension, and whatever the model
+computes from it (maps, renders, factors) must keep that dimension. Declare
+each site's own dimensions as event dimensions (``.to_event()``), or put them
+in ``pyro.plate``\\ s of your own; both work.
+"""
+from __future__ import annotations
+
+import copy
+from dataclasses import dataclass
+from math import prod
+
+import pyro
+import pyro.poutine as poutine
+from pyro.distributions.util import scale_and_mask
+import torch
+from torch import Tensor
+from torch.distributions import biject_to
+
+from .errors import InputError
+
+
+@dataclass(frozen=True)
+class Site:
+    """One latent site: its per-particle shape, where it lives in ``z`` and its bijection."""
+
+    name: str
+    shape: tuple          # constrained value per particle (batch + event)
+    batch_dims: int       # how many leading dims of ``shape`` are plate (batch) dims
+    ushape: tuple         # unconstrained shape per particle
+    offset: int
+    size: int
+    transform: object
+
+
+class Potential:
+    """``U(z)`` with gradients for a Pyro ``model(*args, **kwargs)``.
+
+    Args:
+        model: a Pyro model function.
+        args, kwargs: passed to ``model`` on every run.
+
+    Example:
+        >>> import pyro, pyro.distributions as dist, torch
+        >>> def model():
+        ...     pyro.sample("x", dist.Normal(torch.zeros(2), 1.0).to_event(1))
+        >>> pot = Potential(model)
+        >>> pot.dim
+        2
+        >>> u, g = pot.value_and_grad(torch.tensor([[0.0, 0.0], [1.0, 2.0]]))
+        >>> [round(float(v), 4) for v in u], g[1].tolist()
+        ([1.8379, 4.3379], [1.0, 2.0])
+    """
+
+    def __init__(self, model, args: tuple = (), kwargs: dict | None = None):
+        self.model = model
+        self.args, self.kwargs = tuple(args), dict(kwargs or {})
+        self._count = [0]         # particle evaluations so far (shared with minibatch views of this potential)
+        self._discover()
+
+    @property
+    def evaluations(self) -> int:
+        """Particle evaluations of ``U`` so far (a budget counter)."""
+        return self._count[0]
+
+    def minibatch(self, generator, **kw) -> "Potential":
+        """This potential on a random minibatch of its model data (``views=k``, ``pixels=fraction``).
+
+        Every argument with a ``minibatch`` method (a :class:`~bayes_brdf.models.ModelData`) is replaced
+        by its minibatch; the sites and the evaluation counter are shared.
+        """
+        new = copy.copy(self)
+        mb = lambda a: a.minibatch(generator, **kw) if hasattr(a, "minibatch") else a  # noqa: E731
+        new.args = tuple(mb(a) for a in self.args)
+        new.kwargs = {k: mb(v) for k, v in self.kwargs.items()}
+        return new
+
+    # ------------------------------------------------------------------ set-up
+    def _trace(self, fn, *, n: int | None = None):
+        def run():
+            if n is None:
+                return fn(*self.args, **self.kwargs)
+            with pyro.plate("particles", n, dim=-(self.plate_nesting + 1)):
+                return fn(*self.args, **self.kwargs)
+        return poutine.trace(run).get_trace()
+
+    def _discover(self):
+        try:
+            with torch.random.fork_rng(devices=[]):
+                torch.manual_seed(0)
+                tr = poutine.trace(lambda: self.model(*self.args, **self.kwargs)).get_trace()
+        except InputError:
+            raise
+        except Exception as e:  # a user's model failing: say where, keep it one line
+            raise InputError(f"the model failed on a prior run: {type(e).__name__}: {e}",
+                             fix="check the model function runs on its own") from None
+        self.plate_nesting = max([len(s["cond_indep_stack"]) for s in tr.nodes.values()
+                                  if s["type"] == "sample"] or [0])
+        sites, off = [], 0
+        for name, s in tr.nodes.items():
+            if s["type"] != "sample" or s["is_observed"] or s["infer"].get("_deterministic"):
+                continue
+            fn = s["fn"]
+            if fn.has_rsample is False and fn.support.is_discrete:
+                raise InputError(f"latent site '{name}' is discrete", fix="enumerate or marginalise it out")
+            t = biject_to(fn.support)
+            shape = tuple(s["value"].shape)
+            ushape = tuple(t.inverse_shape(torch.Size(shape)))
+            size = prod(ushape)
+            sites.append(Site(name, shape, len(fn.batch_shape), ushape, off, size, t))
+            off += size
+        if not sites:
+            raise InputError("the model has no latent sites", fix="declare parameters with pyro.sample(...)")
+        self.sites = sites
+        self.dim = off
+        v = next(iter(tr.nodes[s.name]["value"] for s in sites))
+        self.dtype, self.device = v.dtype, v.device
+
+    # ------------------------------------------------------------------ maps z <-> x
+    def _unpack(self, z: Tensor) -> list[Tensor]:
+        if z.dim() != 2 or z.shape[1] != self.dim:
+            raise InputError(f"particles have shape {tuple(z.shape)}, expected [n, {self.dim}]")
+        return [z[:, s.offset:s.offset + s.size].reshape(z.shape[0], *s.ushape) for s in self.sites]
+
+    def _plated(self, s: Site, x: Tensor) -> Tensor:
+        """Insert singleton dims so the particle dim sits at the particle plate's position."""
+        pad = self.plate_nesting - s.batch_dims
+        return x.reshape(x.shape[0], *([1] * pad), *s.shape) if pad > 0 else x
+
+    def to_constrained(self, z: Tensor) -> dict[str, Tensor]:
+        """``{site: [n, *shape]}`` constrained values of particles ``z`` ``[n, D]``."""
+        return {s.name: s.transform(u) for s, u in zip(self.sites, self._unpack(z))}
+
+    def to_unconstrained(self, values: dict[str, Tensor]) -> Tensor:
+        """Inverse of :meth:`to_constrained`: ``{site: [n, *shape]}`` -> ``[n, D]``."""
+        parts = []
+        for s in self.sites:
+            if s.name not in values:
+                raise InputError(f"no value for latent site '{s.name}'")
+            x = values[s.name]
+            parts.append(s.transform.inv(x.to(self.dtype)).reshape(x.shape[0], -1))
+        return torch.cat(parts, dim=1)
+
+    def init(self, n: int, seed: int = 0) -> Tensor:
+        """``[n, D]`` particles drawn from the prior (one model run under the particle plate)."""
+        with torch.random.fork_rng(devices=[self.device] if self.device.type == "cuda" else []):
+            torch.manual_seed(seed)
+            tr = self._trace(self.model, n=n)
+        vals = {}
+        for s in self.sites:
+            v = tr.nodes[s.name]["value"]
+            vals[s.name] = v.reshape(n, *s.shape) if v.shape[0] == n else v.expand(n, *v.shape[1:]).reshape(n, *s.shape)
+        return self.to_unconstrained(vals).detach()
+
+    # ------------------------------------------------------------------ energies
+    def energy(self, z: Tensor, *, jacobian: bool = True) -> Tensor:
+        """``U(z)`` ``[n]``; differentiable w.r.t. ``z`` when ``z`` requires grad."""
+        n = z.shape[0]
+        us = self._unpack(z)
+        data, ladj = {}, z.new_zeros(n)
+        for s, u in zip(self.sites, us):
+            x = s.transform(u)
+            data[s.name] = self._plated(s, x)
+            if jacobian:
+                ladj = ladj + s.transform.log_abs_det_jacobian(u, x).reshape(n, -1).sum(1)
+        tr = self._trace(poutine.condition(self.model, data=data), n=n)
+        logp = z.new_zeros(n)
+        for name, site in tr.nodes.items():
+            if site["type"] != "sample":
+                continue
+            lp = site["fn"].log_prob(site["value"])
+            lp = scale_and_mask(lp, site["scale"], site["mask"])
+            logp = logp + self._per_particle(lp, n, name)
+        self._count[0] += n
+        return -(logp + ladj)
+
+    def _per_particle(self, lp, n: int, name: str) -> Tensor:
+        if not isinstance(lp, Tensor) or lp.dim() == 0:
+            return torch.as_tensor(lp, dtype=self.dtype, device=self.device).expand(n)
+        k = self.plate_nesting + 1
+        if lp.dim() > k:
+            raise InputError(f"site '{name}' has log-prob shape {tuple(lp.shape)} with dims outside any plate",
+                             fix="declare the site's own dimensions with .to_event()")
+        lp = lp.reshape(*([1] * (k - lp.dim())), *lp.shape)
+        lp = lp.reshape(lp.shape[0], -1).sum(1)
+        return lp.expand(n)
+
+    def value_and_grad(self, z: Tensor, *, jacobian: bool = True) -> tuple[Tensor, Tensor]:
+        """Energies ``[n]`` and gradients ``[n, D]`` (detached) from one batched model run."""
+        with torch.enable_grad():
+            z = z.detach().requires_grad_(True)
+            u = self.energy(z, jacobian=jacobian)
+            (g,) = torch.autograd.grad(u.sum(), z)
+        return u.detach(), g
+
+    def __call__(self, z: Tensor) -> Tensor:
+        with torch.no_grad():
+            return self.energy(z)
+
+
+class FunctionPotential:
+    """A potential from a plain batched function ``U: [n, D] -> [n]`` (test densities, users' own targets).
+
+    Example:
+        >>> pot = FunctionPotential(lambda z: 0.5 * (z ** 2).sum(1), dim=3)
+        >>> pot.value_and_grad(torch.ones(2, 3))[1].tolist()
+        [[1.0, 1.0, 1.0], [1.0, 1.0, 1.0]]
+    """
+
+    def __init__(self, fn, dim: int, *, init_std: float = 1.0, dtype=torch.float64):
+        self.fn, self.dim, self.init_std, self.dtype = fn, dim, init_std, dtype
+        self.device = torch.device("cpu")
+        self.evaluations = 0
+
+    def energy(self, z: Tensor, *, jacobian: bool = True) -> Tensor:
+        self.evaluations += z.shape[0]
+        return self.fn(z)
+
+    def value_and_grad(self, z: Tensor, *, jacobian: bool = True):
+        with torch.enable_grad():
+            z = z.detach().requires_grad_(True)
+            u = self.energy(z)
+            (g,) = torch.autograd.grad(u.sum(), z)
+        return u.detach(), g
+
+    def __call__(self, z: Tensor) -> Tensor:
+        with torch.no_grad():
+            return self.energy(z)
+
+    def init(self, n: int, seed: int = 0) -> Tensor:
+        gen = torch.Generator().manual_seed(seed)
+        return torch.randn(n, self.dim, generator=gen, dtype=self.dtype) * self.init_std
+
+    def to_constrained(self, z: Tensor) -> dict[str, Tensor]:
+        return {"z": z}

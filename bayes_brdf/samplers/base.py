@@ -1,0 +1,126 @@
+"""The sampler contract: ``init(z0, potential, rng) -> state`` and ``step(state, t, potential, rng) -> (state, info)``.
+
+Samplers see only a *potential*: an object with ``value_and_grad(z, jacobian=...)
+-> (U [n], dU/dz [n, D])``, ``energy(z) -> [n]``, ``dim`` and ``dtype``
+(:class:`bayes_brdf.potential.Potential` for a Pyro model,
+:class:`~bayes_brdf.potential.FunctionPotential` for a plain density). They
+import nothing from ``render`` or ``models``, so the same sampler runs on any
+model. States are ``NamedTuple``\\ s of tensors and numbers (blackjax style),
+which is what the driver checkpoints. Hyper-parameters are dataclass fields,
+so a preset file spells them out and an unknown key is an error.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import NamedTuple
+
+import torch
+from torch import Tensor
+
+from ..errors import InputError
+
+
+class Sampler:
+    """Base class: hyper-parameters as dataclass fields plus the init/step contract."""
+
+    name = "sampler"
+    #: whether resuming from a checkpoint continues exactly like an uninterrupted run
+    exact_resume = True
+    #: whether ``step`` uses gradients (emcee does not)
+    uses_gradients = True
+
+    num_steps: int = 1000  # set by the driver before ``init`` (annealing needs the horizon)
+
+    def init(self, z0: Tensor, potential, rng: torch.Generator):
+        raise NotImplementedError
+
+    def step(self, state, t: int, potential, rng: torch.Generator):
+        raise NotImplementedError
+
+    def particles(self, state) -> Tensor:
+        """The current samples ``[n, D]``."""
+        return state.z
+
+    def state_type(self):
+        return self.State  # noqa
+
+    # ------------------------------------------------------------------ configuration
+    @classmethod
+    def from_params(cls, params: dict | None = None) -> "Sampler":
+        """Build from a ``{hyper-parameter: value}`` table; unknown keys and bad values are one-line errors."""
+        params = dict(params or {})
+        fields = {f.name: f for f in dataclasses.fields(cls)}
+        extra = set(params) - set(fields)
+        if extra:
+            raise InputError(f"unknown {cls.name} parameter(s) {sorted(extra)}", fix=f"allowed: {sorted(fields)}")
+        kw = {}
+        for k, v in params.items():
+            kw[k] = _coerce(cls.name, k, v, fields[k])
+        s = cls(**kw)
+        s.validate()
+        return s
+
+    def params(self) -> dict:
+        return {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
+
+    def validate(self):
+        """Check hyper-parameter values (one-line :class:`InputError`)."""
+
+    def _positive(self, *names):
+        for k in names:
+            v = getattr(self, k)
+            if not (isinstance(v, (int, float)) and v > 0 and math.isfinite(v)):
+                raise InputError(f"{self.name} parameter {k} must be a positive number, got {v!r}")
+
+    def _choice(self, name, options):
+        v = getattr(self, name)
+        if v not in options:
+            raise InputError(f"{self.name} parameter {name} must be one of {list(options)}, got {v!r}")
+
+
+def _coerce(sampler: str, key: str, value, field):
+    default = field.default if field.default is not dataclasses.MISSING else None
+    if isinstance(default, bool):
+        if not isinstance(value, bool):
+            raise InputError(f"{sampler} parameter {key} must be true or false, got {value!r}")
+        return value
+    if isinstance(default, float) and isinstance(value, int) and not isinstance(value, bool):
+        return float(value)
+    if isinstance(default, (int, float)) and not isinstance(default, bool):
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or \
+                (isinstance(default, int) and not isinstance(default, bool) and not isinstance(value, int)):
+            if not (isinstance(field.type, str) and "str" in field.type and isinstance(value, str)):
+                raise InputError(f"{sampler} parameter {key} must be a number, got {value!r}")
+    if isinstance(default, str) and not isinstance(value, str):
+        if not (isinstance(field.type, str) and ("float" in field.type or "int" in field.type)
+                and isinstance(value, (int, float)) and not isinstance(value, bool)):
+            raise InputError(f"{sampler} parameter {key} must be a string, got {value!r}")
+    return value
+
+
+class Preconditioner(NamedTuple):
+    """Running second moment of the gradients, shared by all particles (RMSprop/Adam style)."""
+
+    v: Tensor      # [D]
+    count: int
+
+
+def precond_init(dim: int, like: Tensor) -> Preconditioner:
+    return Preconditioner(torch.zeros(dim, dtype=like.dtype, device=like.device), 0)
+
+
+def precond_update(p: Preconditioner, grad: Tensor, beta2: float, eps: float) -> tuple[Preconditioner, Tensor]:
+    """Update with ``grad [n, D]`` (averaged over particles); return the new state and the
+    Adam/RMSprop diagonal step-size scale ``G = 1 / (sqrt(v_hat) + eps)`` ``[D]``."""
+    v = beta2 * p.v + (1 - beta2) * (grad * grad).mean(0)
+    c = p.count + 1
+    vhat = v / (1 - beta2 ** c)
+    return Preconditioner(v, c), 1.0 / (vhat.sqrt() + eps)
+
+
+def anneal(t: int, horizon: int, delta: float) -> float:
+    """The annealing weight ``gamma(t) = tanh((1.4 t / T)^delta)`` of Eq. (6)."""
+    if horizon <= 0:
+        return 1.0
+    return math.tanh((1.4 * t / horizon) ** delta)

@@ -1,0 +1,178 @@
+"""The one loop every sampler runs in: seeds, progress bar, NaN checks, callbacks, checkpoints, minibatches.
+
+``run(sampler, potential, particles=20, steps=1000, seed=0, checkpoint="run.pt")``
+draws the initial particles from the prior (``potential.init``), then calls
+``sampler.step`` ``steps`` times. Every ``checkpoint_every`` steps, and on
+Ctrl-C, it writes the sampler state and every random-number state to
+``checkpoint`` (``torch.save`` of tensors and numbers; loaded with
+``weights_only=True``, no pickle); a rerun with the same arguments resumes
+from it and ends exactly where an uninterrupted run would have.
+"""
+from __future__ import annotations
+
+import json
+import os
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import torch
+from torch import Tensor
+from tqdm.auto import tqdm
+
+from ..errors import InputError
+
+FORMAT = "bayes-brdf-checkpoint/1"
+
+
+class SamplerDiverged(InputError):
+    """The particles left the finite numbers: a step size too large, or a model returning NaN."""
+
+
+@dataclass
+class RunResult:
+    """What a run leaves: final particles ``z [n, D]``, the sampler state, the per-step mean energy and timings."""
+
+    z: Tensor
+    state: object
+    energy_trace: Tensor          # [steps] mean energy per step
+    steps: int
+    seconds: float
+    evaluations: int              # particle evaluations of the potential
+    resumed_from: int = 0
+    info: dict = field(default_factory=dict)
+
+
+def _plain(x):
+    if isinstance(x, tuple) and hasattr(x, "_fields"):
+        return {k: _plain(v) for k, v in x._asdict().items()}
+    if isinstance(x, Tensor):
+        return x.detach().cpu()
+    return x
+
+
+def _fill(template, plain, device):
+    if isinstance(template, tuple) and hasattr(template, "_fields"):
+        return type(template)(**{k: _fill(getattr(template, k), plain[k], device) for k in template._fields})
+    if isinstance(template, Tensor):
+        return plain.to(device=template.device, dtype=template.dtype)
+    return plain
+
+
+def _signature(sampler, n, steps, seed, minibatch) -> str:
+    return json.dumps({"sampler": sampler.name, "params": sampler.params(), "particles": n, "steps": steps,
+                       "seed": seed, "minibatch": minibatch}, sort_keys=True, default=str)
+
+
+def _save(path: Path, payload: dict):
+    tmp = path.with_name(path.name + ".tmp")
+    torch.save(payload, tmp)
+    os.replace(tmp, path)
+
+
+def _load(path: Path, signature: str) -> dict:
+    try:
+        ck = torch.load(path, weights_only=True)
+    except Exception as e:  # noqa: BLE001  (a corrupt file: say so in one line)
+        raise InputError(f"unreadable checkpoint ({type(e).__name__})", where=path,
+                         fix="delete it to start over") from None
+    if not isinstance(ck, dict) or ck.get("format") != FORMAT:
+        raise InputError("not a bayes-brdf checkpoint", where=path, fix="delete it or choose another path")
+    if ck["signature"] != signature:
+        raise InputError("the checkpoint was written by a run with other settings", where=path,
+                         fix="delete it, or rerun with the same sampler, particles, steps and seed")
+    return ck
+
+
+def run(sampler, potential, *, particles: int = 20, steps: int = 1000, seed: int = 0, z0: Tensor | None = None,
+        checkpoint=None, checkpoint_every: int = 100, callbacks=(), progress: bool = True,
+        minibatch_views: int | None = None, minibatch_pixels: float | None = None) -> RunResult:
+    """Run ``sampler`` on ``potential`` for ``steps`` steps; see the module docstring.
+
+    ``callbacks`` are called as ``cb(t, state, info)`` after every step.
+    ``minibatch_views`` / ``minibatch_pixels`` make every step use a random
+    subset of the views / pixels with the likelihood rescaled (stochastic
+    gradients; the potential's model data must support ``minibatch``).
+
+    Example:
+        >>> from bayes_brdf.potential import FunctionPotential
+        >>> from bayes_brdf.samplers import SGLD
+        >>> pot = FunctionPotential(lambda z: 0.5 * (z ** 2).sum(1), dim=2)
+        >>> res = run(SGLD(step_size=0.1), pot, particles=200, steps=300, progress=False)
+        >>> 0.7 < float(res.z.var(0).mean()) < 1.3
+        True
+    """
+    if not isinstance(steps, int) or steps < 1:
+        raise InputError(f"steps must be a positive integer, got {steps!r}")
+    if not isinstance(particles, int) or particles < 1:
+        raise InputError(f"particles must be a positive integer, got {particles!r}")
+    mb = {"views": minibatch_views or None, "pixels": minibatch_pixels if minibatch_pixels not in (None, 1.0) else None}
+    use_mb = any(v is not None for v in mb.values())
+    if use_mb and not hasattr(potential, "minibatch"):
+        raise InputError("minibatches need a model potential (its data must support minibatch)")
+    sampler.num_steps = steps
+    signature = _signature(sampler, particles, steps, seed, mb)
+    ck_path = Path(checkpoint) if checkpoint is not None else None
+
+    rng = torch.Generator(device="cpu").manual_seed(seed)
+    torch.manual_seed(seed)
+    if z0 is None:
+        z0 = potential.init(particles, seed=seed)
+    elif tuple(z0.shape) != (particles, potential.dim):
+        raise InputError(f"initial particles have shape {tuple(z0.shape)}, expected {(particles, potential.dim)}")
+    state = sampler.init(z0, potential, rng)
+    trace = torch.full((steps,), float("nan"), dtype=torch.float64)
+    start, seconds0, evals0 = 0, 0.0, 0
+    if ck_path is not None and ck_path.exists() and sampler.exact_resume:
+        ck = _load(ck_path, signature)
+        state = _fill(state, ck["state"], z0.device)
+        rng.set_state(ck["rng"])
+        torch.set_rng_state(ck["global_rng"])
+        start, trace, seconds0, evals0 = ck["t"], ck["trace"], ck["seconds"], ck["evaluations"]
+
+    def save(t, rngs=None):
+        if ck_path is not None:
+            r, gr = rngs or (rng.get_state(), torch.get_rng_state())
+            ck_path.parent.mkdir(parents=True, exist_ok=True)
+            _save(ck_path, {"format": FORMAT, "signature": signature, "t": t, "state": _plain(state),
+                            "rng": r, "global_rng": gr, "trace": trace,
+                            "seconds": seconds0 + time.perf_counter() - t0,
+                            "evaluations": evals0 + _evals(potential) - e0})
+
+    t0, e0 = time.perf_counter(), _evals(potential)
+    bar = tqdm(total=steps, initial=start, desc=sampler.name, disable=not progress, leave=False)
+    t, snap = start, None
+    try:
+        for t in range(start, steps):
+            snap = (rng.get_state(), torch.get_rng_state())
+            pot = potential.minibatch(rng, **mb) if use_mb else potential
+            state, info = sampler.step(state, t, pot, rng)
+            z = sampler.particles(state)
+            e = info.get("energy")
+            if not bool(torch.isfinite(z).all()) or (e is not None and bool(torch.isnan(e).any())):
+                bad = int((~torch.isfinite(z)).any(1).sum())
+                raise SamplerDiverged(
+                    f"{sampler.name} diverged at step {t}: {bad} of {z.shape[0]} particles are not finite",
+                    fix=f"lower step_size (now {getattr(sampler, 'step_size', '?')}) or check the model's energies")
+            if e is not None:
+                trace[t] = float(e.double().mean())
+            for cb in callbacks:
+                cb(t, state, info)
+            bar.update(1)
+            if e is not None and bar.n % 20 == 0:
+                bar.set_postfix(energy=f"{trace[t]:.4g}")
+            if ck_path is not None and checkpoint_every and (t + 1) % checkpoint_every == 0 and t + 1 < steps:
+                save(t + 1)
+        t = steps
+    except KeyboardInterrupt:
+        save(t, snap)
+        bar.close()
+        raise
+    bar.close()
+    save(steps)
+    return RunResult(sampler.particles(state).detach(), state, trace, steps,
+                     seconds0 + time.perf_counter() - t0, evals0 + _evals(potential) - e0, resumed_from=start)
+
+
+def _evals(potential) -> int:
+    return int(getattr(potential, "evaluations", 0))

@@ -1,0 +1,87 @@
+"""Ensemble MH with the affine-invariant stretch move (Goodman & Weare 2010), through the ``emcee`` package.
+
+Gradient-free. One driver step is one ensemble step of ``emcee.EnsembleSampler``
+with ``vectorize=True``: emcee updates the walkers in two halves, so the
+potential is called with ``n / 2`` particles at a time (still one batched
+model run per call). emcee's random state travels in our state, so a resumed
+run continues exactly. With fewer than ``2 D`` walkers the stretch move
+cannot explore the space (the ensemble spans a subspace): a clear warning says so.
+"""
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import emcee
+import numpy as np
+import torch
+from torch import Tensor
+
+from ..errors import InputError
+from .base import Sampler
+
+
+class EnsembleState(NamedTuple):
+    z: Tensor
+    log_prob: Tensor
+    rng_keys: Tensor       # numpy MT19937 state, as tensors (checkpointable without pickle)
+    rng_pos: int
+    acceptance: Tensor     # running acceptance count per walker
+
+
+@dataclass
+class Emcee(Sampler):
+    stretch_a: float = 2.0          # the stretch move's scale parameter a
+
+    name = "emcee"
+    State = EnsembleState
+    uses_gradients = False
+
+    def validate(self):
+        if not self.stretch_a > 1:
+            raise InputError(f"emcee parameter stretch_a must be > 1, got {self.stretch_a!r}")
+
+    def _sampler(self, potential, n, D):
+        key = (id(potential), n, D)
+        if getattr(self, "_key", None) != key:
+            dt = potential.dtype
+
+            def log_prob(x):
+                zz = torch.as_tensor(np.ascontiguousarray(x), dtype=dt, device=potential.device)
+                with torch.no_grad():
+                    lp = -potential.energy(zz)
+                return np.nan_to_num(lp.double().cpu().numpy(), nan=-np.inf)
+
+            self._emcee = emcee.EnsembleSampler(n, D, log_prob, moves=emcee.moves.StretchMove(a=self.stretch_a),
+                                                vectorize=True)
+            self._key = key
+        return self._emcee
+
+    def init(self, z0, potential, rng):
+        n, D = z0.shape
+        if n < 2 or n % 2:
+            raise InputError(f"emcee needs an even number of walkers >= 2, got {n}", fix="set particles to an even number")
+        if n < 2 * D:
+            warnings.warn(f"emcee with {n} walkers in {D} dimensions: the stretch move needs at least 2*D = {2 * D} "
+                          "walkers to explore the space, expect it to stay near its start", stacklevel=2)
+        seed = int(torch.randint(0, 2 ** 31 - 1, (1,), generator=rng))
+        st = np.random.RandomState(seed).get_state()
+        with torch.no_grad():
+            lp = -potential.energy(z0)
+        return EnsembleState(z0.clone(), lp.double(), torch.from_numpy(st[1].astype(np.int64)), int(st[2]),
+                             torch.zeros(n, dtype=torch.float64))
+
+    def step(self, state, t, potential, rng):
+        n, D = state.z.shape
+        s = self._sampler(potential, n, D)
+        rs = ("MT19937", state.rng_keys.numpy().astype(np.uint32), state.rng_pos, 0, 0.0)
+        cur = emcee.State(state.z.detach().cpu().double().numpy(), log_prob=state.log_prob.numpy(), random_state=rs)
+        before = cur.coords.copy()
+        new = s.sample(cur, iterations=1, store=False, skip_initial_state_check=True).__next__()
+        rs = new.random_state
+        z = torch.as_tensor(new.coords, dtype=state.z.dtype, device=state.z.device)
+        moved = torch.from_numpy((new.coords != before).any(1).astype(np.float64))
+        lp = torch.from_numpy(np.asarray(new.log_prob, dtype=np.float64))
+        return (EnsembleState(z, lp, torch.from_numpy(rs[1].astype(np.int64)), int(rs[2]), state.acceptance + moved),
+                {"energy": -lp, "accepted": float(moved.mean())})

@@ -1,0 +1,59 @@
+"""Stochastic-gradient Langevin dynamics (Welling & Teh 2011), n independent chains in parallel.
+
+``x <- x - eps_t G grad U(x) + sqrt(2 eps_t G) xi`` with the step-size schedule
+``eps_t = a (b + t)^(-gamma)`` and ``G = 1`` (``preconditioner = "none"``) or the
+RMSprop diagonal of Li et al. 2016 (``"rmsprop"``, pSGLD), shared by all chains.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import torch
+from torch import Tensor
+
+from ..errors import InputError
+from .base import Preconditioner, Sampler, precond_init, precond_update
+
+
+class SGLDState(NamedTuple):
+    z: Tensor
+    precond: Preconditioner
+
+
+@dataclass
+class SGLD(Sampler):
+    step_size: float = 0.001         # a
+    schedule_b: float = 1.0          # b
+    schedule_gamma: float = 0.0      # gamma (0: constant step size)
+    preconditioner: str = "rmsprop"  # "rmsprop" or "none"
+    rms_beta2: float = 0.99
+    rms_eps: float = 1e-8
+
+    name = "sgld"
+    State = SGLDState
+
+    def validate(self):
+        self._positive("step_size", "schedule_b", "rms_eps")
+        self._choice("preconditioner", ("rmsprop", "none"))
+        if not 0 <= self.schedule_gamma <= 1:
+            raise InputError(f"sgld parameter schedule_gamma must be in [0, 1], got {self.schedule_gamma!r}")
+
+    def epsilon(self, t: int) -> float:
+        return self.step_size * (self.schedule_b + t) ** (-self.schedule_gamma)
+
+    def init(self, z0, potential, rng):
+        return SGLDState(z0.clone(), precond_init(z0.shape[1], z0))
+
+    def step(self, state, t, potential, rng):
+        z = state.z
+        u, grad = potential.value_and_grad(z)
+        eps = self.epsilon(t)
+        pc = state.precond
+        if self.preconditioner == "rmsprop":
+            pc, G = precond_update(pc, grad, self.rms_beta2, self.rms_eps)
+        else:
+            G = torch.ones(z.shape[1], dtype=z.dtype, device=z.device)
+        noise = torch.randn(z.shape, generator=rng, dtype=z.dtype, device=rng.device).to(z.device)
+        z = z - eps * G * grad + torch.sqrt(2 * eps * G) * noise
+        return SGLDState(z, pc), {"energy": u, "step_size": eps}
