@@ -6,6 +6,9 @@ Commands (``bayes-brdf COMMAND --help`` for each):
   generated views (or a capture's views) and write an observation bundle
   (images + ``observations.json``) plus sRGB previews.
 * ``inspect CAPTURE``  -- what a capture (any supported format) contains.
+* ``infer CAPTURE``    -- sample the posterior of a material model with any sampler
+  (name or preset file); writes the posterior, mean and std maps.
+* ``compare``          -- the sampler comparison table (the paper's Table 1).
 
 Bad input prints ONE line ``bayes-brdf: error: ...`` and exits with code 2.
 """
@@ -19,6 +22,9 @@ from pathlib import Path
 
 from .. import __version__
 from ..errors import InputError
+from . import compare as compare_cmd
+from .common import positive_float, positive_int
+from . import infer as infer_cmd
 
 
 class _Parser(argparse.ArgumentParser):
@@ -28,27 +34,9 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {message}; see '{self.prog} --help'\n")
 
 
-def _positive_int(s: str) -> int:
-    try:
-        v = int(s)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got '{s}'") from None
-    if v < 1:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got '{s}'")
-    return v
+_positive_int, _positive_float = positive_int, positive_float
 
 
-def _positive_float(s: str) -> float:
-    try:
-        v = float(s)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive number, got '{s}'") from None
-    if not v > 0 or v == float("inf"):
-        raise argparse.ArgumentTypeError(f"expected a positive number, got '{s}'")
-    return v
-
-
-# ------------------------------------------------------------------ commands
 def _views_from_spec(spec: str, a) -> list:
     from ..render.views import View, collocated_views, orbit_views
 
@@ -172,6 +160,8 @@ def build_parser() -> argparse.ArgumentParser:
                    choices=["auto", "materialgan", "svbrdf-diff-renderer", "svbrdf-diff-renderer-optim", "bundle"],
                    help="capture format (default: %(default)s, detected from the files)")
     i.set_defaults(func=cmd_inspect)
+    infer_cmd.add_parser(sub)
+    compare_cmd.add_parser(sub)
     return p
 
 

@@ -85,11 +85,16 @@ class MaterialModel:
         observe(data, self.maps(values), sigma=self.sigma, kind=self.likelihood, backend=self.backend)
 
     def _fixed(self, value, channels: int, like: Tensor) -> Tensor:
-        t = torch.as_tensor(value, dtype=like.dtype, device=like.device)
-        if t.dim() <= 1:
-            t = t.reshape(-1).expand(channels) if t.numel() == 1 else t
-            return t.reshape(channels, 1, 1)
-        return t
+        """A fixed map as a tensor, made once per dtype/device: the renderer caches the geometry
+        derived from fixed maps by tensor identity, so a fresh tensor per call would defeat it."""
+        key = (id(value) if isinstance(value, Tensor) else repr(value), channels, like.dtype, str(like.device))
+        cache = self.__dict__.setdefault("_fixed_cache", {})
+        if key not in cache:
+            t = torch.as_tensor(value, dtype=like.dtype, device=like.device)
+            if t.dim() <= 1:
+                t = (t.reshape(-1).expand(channels) if t.numel() == 1 else t).reshape(channels, 1, 1)
+            cache[key] = t.contiguous()
+        return cache[key]
 
 
 @dataclass
@@ -112,8 +117,7 @@ class Homogeneous(MaterialModel):
         alb = px(a).expand(*a.shape[:-1], 3, 1, 1)
         spec = (px(values["specular"]).expand(*a.shape[:-1], 3, 1, 1) if "specular" in values
                 else self._fixed(self.specular, 3, a))
-        nrm = torch.tensor([0.0, 0.0, 1.0], dtype=a.dtype, device=a.device).reshape(3, 1, 1)
-        return SVBRDF(alb, px(values["roughness"]), spec, nrm)
+        return SVBRDF(alb, px(values["roughness"]), spec, self._fixed((0.0, 0.0, 1.0), 3, a))
 
 
 @dataclass
@@ -168,7 +172,7 @@ class PerTexel(MaterialModel):
             nrm = torch.cat([-s, torch.ones_like(s[..., :1, :, :])], dim=-3)
             nrm = nrm / nrm.norm(dim=-3, keepdim=True)
         elif isinstance(self.normals, str):
-            nrm = torch.tensor([0.0, 0.0, 1.0], dtype=a.dtype, device=a.device).reshape(3, 1, 1)
+            nrm = self._fixed((0.0, 0.0, 1.0), 3, a)
         else:
             nrm = self._fixed(self.normals, 3, a)
         return SVBRDF(alb, values["roughness"], spec, nrm)

@@ -26,6 +26,10 @@ from torch.distributions import constraints
 from ..errors import InputError
 
 
+def _tensor(x):
+    return x if isinstance(x, torch.Tensor) else torch.as_tensor(x, dtype=torch.get_default_dtype())
+
+
 class Box(TorchDistribution):
     """Uniform on ``[low, high]`` with the density ``1 / (high - low)`` on the closed interval.
 
@@ -37,8 +41,7 @@ class Box(TorchDistribution):
     has_rsample = True
 
     def __init__(self, low, high, validate_args=None):
-        self.low, self.high = torch.broadcast_tensors(torch.as_tensor(low, dtype=torch.get_default_dtype()),
-                                                      torch.as_tensor(high, dtype=torch.get_default_dtype()))
+        self.low, self.high = torch.broadcast_tensors(_tensor(low), _tensor(high))
         super().__init__(self.low.shape, validate_args=False)
 
     @constraints.dependent_property(is_discrete=False, event_dim=0)
@@ -64,8 +67,7 @@ class TruncatedNormal(TorchDistribution):
     has_rsample = True
 
     def __init__(self, loc, scale, low, high, validate_args=None):
-        t = lambda x: torch.as_tensor(x, dtype=torch.get_default_dtype())  # noqa: E731
-        self.loc, self.scale, self.low, self.high = torch.broadcast_tensors(t(loc), t(scale), t(low), t(high))
+        self.loc, self.scale, self.low, self.high = torch.broadcast_tensors(*map(_tensor, (loc, scale, low, high)))
         a, b = (self.low - self.loc) / self.scale, (self.high - self.loc) / self.scale
         self._ca, self._cb = torch.special.ndtr(a), torch.special.ndtr(b)
         self._logz = (self._cb - self._ca).clamp_min(1e-300).log() + self.scale.log() + 0.5 * math.log(2 * math.pi)

@@ -30,7 +30,10 @@ class Sampler:
     #: whether ``step`` uses gradients (emcee does not)
     uses_gradients = True
 
+    #: whether the sampler can run ``groups`` independent ensembles in one call
+    supports_groups = True
     num_steps: int = 1000  # set by the driver before ``init`` (annealing needs the horizon)
+    groups: int = 1        # set by the driver: independent ensembles batched in one run
 
     def init(self, z0: Tensor, potential, rng: torch.Generator):
         raise NotImplementedError
@@ -73,6 +76,13 @@ class Sampler:
             if not (isinstance(v, (int, float)) and v > 0 and math.isfinite(v)):
                 raise InputError(f"{self.name} parameter {k} must be a positive number, got {v!r}")
 
+    def _unit(self, *names):
+        """Parameters that must lie strictly inside (0, 1) (decay rates)."""
+        for k in names:
+            v = getattr(self, k)
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0 < v < 1:
+                raise InputError(f"{self.name} parameter {k} must be in (0, 1), got {v!r}")
+
     def _choice(self, name, options):
         v = getattr(self, name)
         if v not in options:
@@ -91,7 +101,8 @@ def _coerce(sampler: str, key: str, value, field):
         if isinstance(value, bool) or not isinstance(value, (int, float)) or \
                 (isinstance(default, int) and not isinstance(default, bool) and not isinstance(value, int)):
             if not (isinstance(field.type, str) and "str" in field.type and isinstance(value, str)):
-                raise InputError(f"{sampler} parameter {key} must be a number, got {value!r}")
+                what = "an integer" if isinstance(default, int) and isinstance(value, float) else "a number"
+                raise InputError(f"{sampler} parameter {key} must be {what}, got {value!r}")
     if isinstance(default, str) and not isinstance(value, str):
         if not (isinstance(field.type, str) and ("float" in field.type or "int" in field.type)
                 and isinstance(value, (int, float)) and not isinstance(value, bool)):
@@ -100,23 +111,27 @@ def _coerce(sampler: str, key: str, value, field):
 
 
 class Preconditioner(NamedTuple):
-    """Running second moment of the gradients, shared by all particles (RMSprop/Adam style)."""
+    """Running second moment of the gradients, shared by the particles of a group (RMSprop/Adam style)."""
 
-    v: Tensor      # [D]
+    v: Tensor      # [G, D]
     count: int
 
 
-def precond_init(dim: int, like: Tensor) -> Preconditioner:
-    return Preconditioner(torch.zeros(dim, dtype=like.dtype, device=like.device), 0)
+def precond_init(groups: int, dim: int, like: Tensor) -> Preconditioner:
+    return Preconditioner(torch.zeros(groups, dim, dtype=like.dtype, device=like.device), 0)
 
 
 def precond_update(p: Preconditioner, grad: Tensor, beta2: float, eps: float) -> tuple[Preconditioner, Tensor]:
-    """Update with ``grad [n, D]`` (averaged over particles); return the new state and the
-    Adam/RMSprop diagonal step-size scale ``G = 1 / (sqrt(v_hat) + eps)`` ``[D]``."""
-    v = beta2 * p.v + (1 - beta2) * (grad * grad).mean(0)
+    """Update with ``grad [G * n, D]`` (averaged over each group's particles); return the new state and
+    the Adam/RMSprop diagonal step-size scale ``G = 1 / (sqrt(v_hat) + eps)`` as ``[G, 1, D]`` (it
+    broadcasts over a ``[G, n, D]`` view of the particles)."""
+    groups = p.v.shape[0]
+    g = grad.reshape(groups, -1, grad.shape[1])
+    g2 = torch.einsum("gnd,gnd->gd", g, g).div_(g.shape[1])
+    v = torch.lerp(g2, p.v, beta2)              # beta2 v + (1 - beta2) g^2
     c = p.count + 1
-    vhat = v / (1 - beta2 ** c)
-    return Preconditioner(v, c), 1.0 / (vhat.sqrt() + eps)
+    scale = v.div(1 - beta2 ** c).sqrt_().add_(eps).reciprocal_()
+    return Preconditioner(v, c), scale[:, None, :]
 
 
 def anneal(t: int, horizon: int, delta: float) -> float:

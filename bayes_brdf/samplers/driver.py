@@ -59,9 +59,9 @@ def _fill(template, plain, device):
     return plain
 
 
-def _signature(sampler, n, steps, seed, minibatch) -> str:
+def _signature(sampler, n, steps, seed, minibatch, groups) -> str:
     return json.dumps({"sampler": sampler.name, "params": sampler.params(), "particles": n, "steps": steps,
-                       "seed": seed, "minibatch": minibatch}, sort_keys=True, default=str)
+                       "seed": seed, "minibatch": minibatch, "groups": groups}, sort_keys=True, default=str)
 
 
 def _save(path: Path, payload: dict):
@@ -86,13 +86,16 @@ def _load(path: Path, signature: str) -> dict:
 
 def run(sampler, potential, *, particles: int = 20, steps: int = 1000, seed: int = 0, z0: Tensor | None = None,
         checkpoint=None, checkpoint_every: int = 100, callbacks=(), progress: bool = True,
-        minibatch_views: int | None = None, minibatch_pixels: float | None = None) -> RunResult:
+        minibatch_views: int | None = None, minibatch_pixels: float | None = None, groups: int = 1) -> RunResult:
     """Run ``sampler`` on ``potential`` for ``steps`` steps; see the module docstring.
 
     ``callbacks`` are called as ``cb(t, state, info)`` after every step.
     ``minibatch_views`` / ``minibatch_pixels`` make every step use a random
     subset of the views / pixels with the likelihood rescaled (stochastic
     gradients; the potential's model data must support ``minibatch``).
+    ``groups`` runs that many independent ensembles of ``particles`` each in
+    one batched run (``z`` is ``[groups * particles, D]``, group by group):
+    the same statistics as ``groups`` separate runs, at the cost of one.
 
     Example:
         >>> from bayes_brdf.potential import FunctionPotential
@@ -102,24 +105,39 @@ def run(sampler, potential, *, particles: int = 20, steps: int = 1000, seed: int
         >>> 0.7 < float(res.z.var(0).mean()) < 1.3
         True
     """
+    # the caller's global RNG is left as it was; inside, it is seeded (Pyro's NUTS draws from it)
+    with torch.random.fork_rng(devices=[]):
+        return _run(sampler, potential, particles=particles, steps=steps, seed=seed, z0=z0, checkpoint=checkpoint,
+                    checkpoint_every=checkpoint_every, callbacks=callbacks, progress=progress,
+                    minibatch_views=minibatch_views, minibatch_pixels=minibatch_pixels, groups=groups)
+
+
+def _run(sampler, potential, *, particles: int = 20, steps: int = 1000, seed: int = 0, z0: Tensor | None = None,
+        checkpoint=None, checkpoint_every: int = 100, callbacks=(), progress: bool = True,
+        minibatch_views: int | None = None, minibatch_pixels: float | None = None, groups: int = 1) -> RunResult:
     if not isinstance(steps, int) or steps < 1:
         raise InputError(f"steps must be a positive integer, got {steps!r}")
     if not isinstance(particles, int) or particles < 1:
         raise InputError(f"particles must be a positive integer, got {particles!r}")
+    if isinstance(groups, bool) or not isinstance(groups, int) or groups < 1:
+        raise InputError(f"groups must be a positive integer, got {groups!r}")
+    if groups > 1 and not sampler.supports_groups:
+        raise InputError(f"{sampler.name} cannot batch independent groups", fix="run the groups one by one")
     mb = {"views": minibatch_views or None, "pixels": minibatch_pixels if minibatch_pixels not in (None, 1.0) else None}
     use_mb = any(v is not None for v in mb.values())
     if use_mb and not hasattr(potential, "minibatch"):
         raise InputError("minibatches need a model potential (its data must support minibatch)")
-    sampler.num_steps = steps
-    signature = _signature(sampler, particles, steps, seed, mb)
+    sampler.num_steps, sampler.groups = steps, groups
+    signature = _signature(sampler, particles, steps, seed, mb, groups)
+    total = particles * groups
     ck_path = Path(checkpoint) if checkpoint is not None else None
 
     rng = torch.Generator(device="cpu").manual_seed(seed)
     torch.manual_seed(seed)
     if z0 is None:
-        z0 = potential.init(particles, seed=seed)
-    elif tuple(z0.shape) != (particles, potential.dim):
-        raise InputError(f"initial particles have shape {tuple(z0.shape)}, expected {(particles, potential.dim)}")
+        z0 = potential.init(total, seed=seed)
+    elif tuple(z0.shape) != (total, potential.dim):
+        raise InputError(f"initial particles have shape {tuple(z0.shape)}, expected {(total, potential.dim)}")
     state = sampler.init(z0, potential, rng)
     trace = torch.full((steps,), float("nan"), dtype=torch.float64)
     start, seconds0, evals0 = 0, 0.0, 0
@@ -141,21 +159,24 @@ def run(sampler, potential, *, particles: int = 20, steps: int = 1000, seed: int
 
     t0, e0 = time.perf_counter(), _evals(potential)
     bar = tqdm(total=steps, initial=start, desc=sampler.name, disable=not progress, leave=False)
-    t, snap = start, None
+    done, snap = start, None   # steps whose result is in `state`; RNG states before the step in flight
     try:
         for t in range(start, steps):
             snap = (rng.get_state(), torch.get_rng_state())
+            done = t
             pot = potential.minibatch(rng, **mb) if use_mb else potential
-            state, info = sampler.step(state, t, pot, rng)
-            z = sampler.particles(state)
+            new_state, info = sampler.step(state, t, pot, rng)
+            z = sampler.particles(new_state)
             e = info.get("energy")
             if not bool(torch.isfinite(z).all()) or (e is not None and bool(torch.isnan(e).any())):
                 bad = int((~torch.isfinite(z)).any(1).sum())
                 raise SamplerDiverged(
                     f"{sampler.name} diverged at step {t}: {bad} of {z.shape[0]} particles are not finite",
-                    fix=f"lower step_size (now {getattr(sampler, 'step_size', '?')}) or check the model's energies")
+                    fix=(f"lower step_size (now {sampler.step_size}) or check the model's energies"
+                         if hasattr(sampler, "step_size") else "check the model's energies"))
             if e is not None:
                 trace[t] = float(e.double().mean())
+            state, done, snap = new_state, t + 1, None   # committed: a checkpoint now resumes after step t
             for cb in callbacks:
                 cb(t, state, info)
             bar.update(1)
@@ -163,9 +184,8 @@ def run(sampler, potential, *, particles: int = 20, steps: int = 1000, seed: int
                 bar.set_postfix(energy=f"{trace[t]:.4g}")
             if ck_path is not None and checkpoint_every and (t + 1) % checkpoint_every == 0 and t + 1 < steps:
                 save(t + 1)
-        t = steps
     except KeyboardInterrupt:
-        save(t, snap)
+        save(done, snap)
         bar.close()
         raise
     bar.close()

@@ -35,6 +35,7 @@ class Emcee(Sampler):
     stretch_a: float = 2.0          # the stretch move's scale parameter a
 
     name = "emcee"
+    supports_groups = False
     State = EnsembleState
     uses_gradients = False
 
@@ -53,8 +54,9 @@ class Emcee(Sampler):
                     lp = -potential.energy(zz)
                 return np.nan_to_num(lp.double().cpu().numpy(), nan=-np.inf)
 
-            self._emcee = emcee.EnsembleSampler(n, D, log_prob, moves=emcee.moves.StretchMove(a=self.stretch_a),
-                                                vectorize=True)
+            # we warn ourselves when n < 2 D (in init); emcee would raise instead
+            move = emcee.moves.StretchMove(a=self.stretch_a, live_dangerously=n < 2 * D)
+            self._emcee = emcee.EnsembleSampler(n, D, log_prob, moves=move, vectorize=True)
             self._key = key
         return self._emcee
 
@@ -69,6 +71,7 @@ class Emcee(Sampler):
         st = np.random.RandomState(seed).get_state()
         with torch.no_grad():
             lp = -potential.energy(z0)
+        _check_start(lp, self.name)
         return EnsembleState(z0.clone(), lp.double(), torch.from_numpy(st[1].astype(np.int64)), int(st[2]),
                              torch.zeros(n, dtype=torch.float64))
 
@@ -85,3 +88,13 @@ class Emcee(Sampler):
         lp = torch.from_numpy(np.asarray(new.log_prob, dtype=np.float64))
         return (EnsembleState(z, lp, torch.from_numpy(rs[1].astype(np.int64)), int(rs[2]), state.acceptance + moved),
                 {"energy": -lp, "accepted": float(moved.mean())})
+
+
+def _check_start(neg_energy: Tensor, name: str):
+    """A NaN energy at the start: one clear line instead of an error from deep inside a library."""
+    from .driver import SamplerDiverged
+    bad = int(torch.isnan(neg_energy).sum())
+    if bad:
+        raise SamplerDiverged(f"{name} diverged at step 0: the energy is NaN at {bad} of {neg_energy.numel()} "
+                              "starting points",
+                              fix="check the model's energies where the prior draws its samples")

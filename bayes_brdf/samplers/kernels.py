@@ -1,4 +1,4 @@
-"""The RBF kernel of Eq. (5) with the median-distance bandwidth, batched over particles."""
+"""The RBF kernel of Eq. (5) with the median-distance bandwidth, batched over particles (and groups)."""
 from __future__ import annotations
 
 import math
@@ -7,30 +7,39 @@ import torch
 from torch import Tensor
 
 
-def rbf_median(z: Tensor) -> tuple[Tensor, Tensor]:
-    """Kernel matrix and the summed kernel gradients for particles ``z [n, D]``.
+def rbf_median(z: Tensor, groups: int = 1) -> tuple[Tensor, Tensor]:
+    """Kernel matrices and the summed kernel gradients for particles ``z [G * n, D]`` in ``G`` groups.
 
-    ``k(x_j, x_i) = exp(-log(n) / M^2 * |x_j - x_i|^2)`` with ``M`` the median of
-    the pairwise distances (Eq. 5). Returns ``K [n, n]`` and
-    ``rep [n, D] = sum_j grad_{x_j} k(x_j, x_i)`` (the repulsion, not yet divided
-    by ``n``).
+    Within each group, ``k(x_j, x_i) = exp(-log(n) / M^2 * |x_j - x_i|^2)`` with
+    ``M`` the median of the group's pairwise distances (Eq. 5). Groups are
+    independent ensembles (e.g. independent runs batched into one call).
+    Returns ``K [G, n, n]`` and ``rep [G * n, D] = sum_j grad_{x_j} k(x_j, x_i)``
+    (the repulsion, not yet divided by ``n``).
 
     Example:
         >>> K, rep = rbf_median(torch.tensor([[0.0], [1.0], [3.0]]))
         >>> K.shape, bool(rep[0, 0] < 0 < rep[2, 0])
-        (torch.Size([3, 3]), True)
+        (torch.Size([1, 3, 3]), True)
     """
-    n = z.shape[0]
-    x = z
+    N, D = z.shape
+    n = N // groups
+    x = z.reshape(groups, n, D)
     if n < 2:
-        return torch.ones(n, n, dtype=z.dtype, device=z.device), torch.zeros_like(z)
-    sq = (x * x).sum(1)
-    d2 = (sq[:, None] + sq[None, :] - 2 * x @ x.T).clamp_min(0)
-    d2.fill_diagonal_(0)
+        return torch.ones(groups, n, n, dtype=z.dtype, device=z.device), torch.zeros_like(z)
+    sq = (x * x).sum(-1)
+    d2 = (sq[:, :, None] + sq[:, None, :] - 2 * x @ x.transpose(1, 2)).clamp_min(0)
+    eye = torch.eye(n, dtype=torch.bool, device=z.device)
+    d2 = d2.masked_fill(eye, 0.0)
     iu = torch.triu_indices(n, n, 1, device=z.device)
-    m2 = d2[iu[0], iu[1]].sqrt().median() ** 2
-    h = m2 / math.log(n) if float(m2) > 0 else torch.ones((), dtype=z.dtype, device=z.device)
+    m2 = d2[:, iu[0], iu[1]].sqrt().median(dim=1).values ** 2          # [G]
+    h = torch.where(m2 > 0, m2 / math.log(n), torch.ones_like(m2))[:, None, None]
     K = torch.exp(-d2 / h)
-    # sum_j grad_{x_j} k(x_j, x_i) = sum_j K_ij * (-2/h) (x_j - x_i) = (2/h) (x_i sum_j K_ij - sum_j K_ij x_j)
-    rep = (2 / h) * (x * K.sum(1, keepdim=True) - K @ x)
-    return K, rep
+    # sum_j grad_{x_j} k(x_j, x_i) = sum_j K_ij (-2/h)(x_j - x_i) = (2/h) (x_i sum_j K_ij - sum_j K_ij x_j)
+    rep = (2 / h) * (x * K.sum(-1, keepdim=True) - K @ x)
+    return K, rep.reshape(N, D)
+
+
+def kernel_apply(K: Tensor, g: Tensor) -> Tensor:
+    """``sum_j k(x_j, x_i) g_j`` for every particle: ``K [G, n, n]``, ``g [G * n, D]`` -> ``[G * n, D]``."""
+    G, n, _ = K.shape
+    return (K @ g.reshape(G, n, -1)).reshape(g.shape)

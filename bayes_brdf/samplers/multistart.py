@@ -26,7 +26,7 @@ class MultistartState(NamedTuple):
 @dataclass
 class MultistartSGD(Sampler):
     optimizer: str = "adam"          # "adam" or "sgd"
-    step_size: float = 0.01
+    step_size: float = 0.05
     adam_beta1: float = 0.9
     adam_beta2: float = 0.999
     adam_eps: float = 1e-8
@@ -37,6 +37,7 @@ class MultistartSGD(Sampler):
 
     def validate(self):
         self._positive("step_size", "adam_eps")
+        self._unit("adam_beta1", "adam_beta2")
         self._choice("optimizer", ("adam", "sgd"))
 
     def init(self, z0, potential, rng):

@@ -20,6 +20,7 @@ from torch import Tensor
 
 from ..errors import InputError
 from .base import Sampler
+from .ensemble import _check_start
 
 
 class NUTSState(NamedTuple):
@@ -31,13 +32,14 @@ class NUTSState(NamedTuple):
 @dataclass
 class NUTS(Sampler):
     warmup_steps: int = 200
-    thin: int = 1
+    thin: int = 10
     step_size: float = 0.1           # initial step size (adapted during warm-up)
     target_accept: float = 0.8
     max_tree_depth: int = 8
     adapt_mass_matrix: bool = True
 
     name = "nuts"
+    supports_groups = False
     State = NUTSState
     exact_resume = False
 
@@ -54,6 +56,9 @@ class NUTS(Sampler):
         if self.num_steps < need:
             raise InputError(f"nuts with {n} particles needs at least warmup_steps + n * thin = {need} steps, "
                              f"got {self.num_steps}", fix="raise steps or lower warmup_steps/thin")
+
+        with torch.no_grad():
+            _check_start(-potential.energy(z0[:1]), self.name)
 
         def potential_fn(params):
             return potential.energy(params["z"][None])[0]

@@ -23,7 +23,7 @@ class SGLDState(NamedTuple):
 
 @dataclass
 class SGLD(Sampler):
-    step_size: float = 0.001         # a
+    step_size: float = 0.01          # a
     schedule_b: float = 1.0          # b
     schedule_gamma: float = 0.0      # gamma (0: constant step size)
     preconditioner: str = "rmsprop"  # "rmsprop" or "none"
@@ -35,6 +35,7 @@ class SGLD(Sampler):
 
     def validate(self):
         self._positive("step_size", "schedule_b", "rms_eps")
+        self._unit("rms_beta2")
         self._choice("preconditioner", ("rmsprop", "none"))
         if not 0 <= self.schedule_gamma <= 1:
             raise InputError(f"sgld parameter schedule_gamma must be in [0, 1], got {self.schedule_gamma!r}")
@@ -43,7 +44,7 @@ class SGLD(Sampler):
         return self.step_size * (self.schedule_b + t) ** (-self.schedule_gamma)
 
     def init(self, z0, potential, rng):
-        return SGLDState(z0.clone(), precond_init(z0.shape[1], z0))
+        return SGLDState(z0.clone(), precond_init(self.groups, z0.shape[1], z0))
 
     def step(self, state, t, potential, rng):
         z = state.z
@@ -53,7 +54,9 @@ class SGLD(Sampler):
         if self.preconditioner == "rmsprop":
             pc, G = precond_update(pc, grad, self.rms_beta2, self.rms_eps)
         else:
-            G = torch.ones(z.shape[1], dtype=z.dtype, device=z.device)
-        noise = torch.randn(z.shape, generator=rng, dtype=z.dtype, device=rng.device).to(z.device)
-        z = z - eps * G * grad + torch.sqrt(2 * eps * G) * noise
+            G = torch.ones((), dtype=z.dtype, device=z.device)
+        shape = (self.groups, z.shape[0] // self.groups, z.shape[1])
+        noise = torch.randn(z.shape, generator=rng, dtype=z.dtype, device=rng.device).to(z.device).view(shape)
+        z = noise.mul_(G.mul(2 * eps).sqrt_()).addcmul_(G, grad.view(shape), value=-eps).add_(z.view(shape))
+        z = z.view(state.z.shape)
         return SGLDState(z, pc), {"energy": u, "step_size": eps}

@@ -15,8 +15,9 @@ from typing import NamedTuple
 import torch
 from torch import Tensor
 
+from ..errors import InputError
 from .base import Sampler, anneal
-from .kernels import rbf_median
+from .kernels import kernel_apply, rbf_median
 
 
 class SVGDState(NamedTuple):
@@ -28,7 +29,7 @@ class SVGDState(NamedTuple):
 
 @dataclass
 class SVGD(Sampler):
-    step_size: float = 0.01
+    step_size: float = 0.05
     optimizer: str = "adam"          # "adam" or "sgd"
     adam_beta1: float = 0.9
     adam_beta2: float = 0.999
@@ -41,19 +42,22 @@ class SVGD(Sampler):
     State = SVGDState
 
     def validate(self):
-        self._positive("step_size", "adam_eps", "anneal_delta", "anneal_fraction")
+        self._positive("step_size", "adam_eps", "anneal_delta")
+        self._unit("adam_beta1", "adam_beta2")
         self._choice("optimizer", ("adam", "sgd"))
+        if not 0 < self.anneal_fraction <= 1:
+            raise InputError(f"svgd parameter anneal_fraction must be in (0, 1], got {self.anneal_fraction!r}")
 
     def init(self, z0, potential, rng):
         return SVGDState(z0.clone(), torch.zeros_like(z0), torch.zeros_like(z0), 0)
 
     def step(self, state, t, potential, rng):
         z = state.z
-        n = z.shape[0]
+        n = z.shape[0] // self.groups
         u, grad = potential.value_and_grad(z)
         gam = anneal(t, round(self.anneal_fraction * self.num_steps), self.anneal_delta) if self.anneal else 1.0
-        K, rep = rbf_median(z)
-        phi = (rep - K @ (gam * grad)) / n
+        K, rep = rbf_median(z, self.groups)
+        phi = (rep - kernel_apply(K, gam * grad)) / n
         m, v, c = state.m, state.v, state.count + 1
         if self.optimizer == "adam":
             m = self.adam_beta1 * m + (1 - self.adam_beta1) * phi

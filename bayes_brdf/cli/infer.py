@@ -1,0 +1,72 @@
+"""``bayes-brdf infer CAPTURE``: sample a material model's posterior with any sampler, write what it found."""
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+from .common import int_list, key_value, positive_int
+
+
+def add_parser(sub):
+    f = sub.add_parser("infer", help="sample the posterior of a material model given a capture",
+                       description="Load a capture (any supported format), sample the posterior of a model preset "
+                                   "(models/*.toml or a path) with a sampler preset (samplers/*.toml or a path) and "
+                                   "write posterior.safetensors, the mean and MAP maps, per-site std maps (EXR) and "
+                                   "summary.json to --out. Rerunning with the same arguments resumes from the "
+                                   "checkpoint in --out.")
+    f.add_argument("capture", help="capture folder (or its parameters.json / optim.json / observations.json)")
+    f.add_argument("--model", default="per_texel", help="model preset name or TOML path (default: %(default)s)")
+    f.add_argument("--sampler", default="spos", help="sampler preset name or TOML path (default: %(default)s)")
+    f.add_argument("--views", type=int_list, default=None, help="comma-separated view indices to use (default: all)")
+    f.add_argument("--resolution", type=positive_int, default=128,
+                   help="resample the photos to this resolution; a per_texel model uses as many texels "
+                        "(default: %(default)s)")
+    f.add_argument("--particles", type=positive_int, default=None, help="override the preset's particle count")
+    f.add_argument("--steps", type=positive_int, default=None, help="override the preset's step count")
+    f.add_argument("--param", type=key_value, action="append", default=[], metavar="KEY=VALUE",
+                   help="override a sampler hyper-parameter, e.g. step_size=0.02 (repeatable)")
+    f.add_argument("--model-param", type=key_value, action="append", default=[], metavar="KEY=VALUE",
+                   help="override a model option, e.g. sigma=0.02 (repeatable)")
+    f.add_argument("--seed", type=int, default=0, help="random seed (default: %(default)s)")
+    f.add_argument("--device", default="cpu", help="torch device, e.g. cpu or cuda (default: %(default)s)")
+    f.add_argument("--out", default="out/infer", help="output folder (default: %(default)s)")
+    f.set_defaults(func=run)
+
+
+def run(a) -> int:
+    import torch
+
+    from ..inference import infer
+    from ..io import load_capture, save_svbrdf, write_exr
+    from ..presets import load_preset
+
+    obs = load_capture(a.capture, resolution=a.resolution)
+    if a.views is not None:
+        obs = obs.subset(a.views)
+    table = dict(load_preset("models", a.model))
+    table.update(dict(a.model_param))
+    if table.get("model") == "per_texel" and "resolution" not in dict(a.model_param):
+        table["resolution"] = a.resolution
+    out = Path(a.out)
+    out.mkdir(parents=True, exist_ok=True)
+    post = infer(table, obs, a.sampler, seed=a.seed, particles=a.particles, steps=a.steps,
+                 params=dict(a.param) or None, checkpoint=out / "checkpoint.pt", progress=sys.stderr.isatty(),
+                 device=a.device)
+    post.save(out / "posterior.safetensors")
+    save_svbrdf(post.maps("mean").to("cpu"), out / "mean")
+    save_svbrdf(post.maps("map").to("cpu"), out / "map")
+    for site, s in post.std().items():
+        img = s.float().cpu()
+        img = img[:, None, None] if img.dim() == 1 else img
+        write_exr(out / "std" / f"{site}.exr", img.movedim(0, -1).expand(*img.shape[1:], 3) if img.shape[0] in (1, 2)
+                  else img.movedim(0, -1))
+    summary = {"capture": str(a.capture), "views": a.views, "model": post.meta["model"],
+               "sampler": post.meta["sampler"], "params": post.meta["params"], "run": post.meta["run"],
+               "seed": a.seed, "seconds": post.meta["seconds"], "evaluations": post.meta["evaluations"],
+               "mean_std": {k: float(v.mean()) for k, v in post.std().items()},
+               "best_energy": float(post.energies.min()), "device": str(torch.device(a.device))}
+    (out / "summary.json").write_text(json.dumps(summary, indent=2, default=str))
+    print(f"{post} from {len(obs)} views in {post.meta['seconds']:.1f} s -> {out}/ "
+          f"(posterior.safetensors, mean/, map/, std/, summary.json)")
+    return 0
