@@ -1,6 +1,8 @@
 """``bb.infer``: a model, observations and a sampler in, a :class:`Posterior` out."""
 from __future__ import annotations
 
+import sys
+
 import torch
 
 from .errors import InputError
@@ -26,7 +28,7 @@ def resolve_model(model):
 
 
 def infer(model, observations, sampler="spos", *, seed: int = 0, particles: int | None = None,
-          steps: int | None = None, params: dict | None = None, checkpoint=None, progress: bool = True,
+          steps: int | None = None, params: dict | None = None, checkpoint=None, progress: bool | None = None,
           dtype=torch.float32, device=None, callbacks=()) -> Posterior:
     """Sample the posterior of ``model`` given ``observations`` with ``sampler``.
 
@@ -38,6 +40,7 @@ def infer(model, observations, sampler="spos", *, seed: int = 0, particles: int 
         seed: same seed, same result.
         particles, steps, params: override the preset's run size and hyper-parameters.
         checkpoint: a file to checkpoint to and resume from.
+        progress: show a progress bar (default: when stderr is a terminal).
         device: where to run; by default the observations' device.
 
     Example:
@@ -61,6 +64,8 @@ def infer(model, observations, sampler="spos", *, seed: int = 0, particles: int 
     smp, cfg = make_sampler(sampler, params=params,
                             run={k: v for k, v in (("particles", particles), ("steps", steps)) if v is not None})
     pot = Potential(model, (data,))
+    if progress is None:
+        progress = sys.stderr.isatty()
     res = run(smp, pot, seed=seed, checkpoint=checkpoint, progress=progress, callbacks=callbacks, **cfg.run_kwargs())
     with torch.no_grad():
         energies = pot.energy(res.z, jacobian=False)

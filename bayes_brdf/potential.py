@@ -90,9 +90,12 @@ class IntervalBijection:
     @classmethod
     def maybe(cls, support):
         from torch.distributions import constraints
-        if not isinstance(support, constraints.interval):
+        base = support
+        while isinstance(base, constraints.independent):   # .to_event(): the same bijection elementwise
+            base = base.base_constraint
+        if not isinstance(base, constraints.interval):
             return None
-        lo, hi = torch.as_tensor(support.lower_bound), torch.as_tensor(support.upper_bound)
+        lo, hi = torch.as_tensor(base.lower_bound), torch.as_tensor(base.upper_bound)
         if lo.numel() == 0 or not (bool((lo == lo.reshape(-1)[0]).all()) and bool((hi == hi.reshape(-1)[0]).all())):
             return None
         return cls(float(lo.reshape(-1)[0]), float(hi.reshape(-1)[0]), support)

@@ -571,7 +571,7 @@ def summarise(albedo: torch.Tensor, roughness: torch.Tensor, exact: dict) -> dic
 
 def std_ratios(sampler_name: str = "spos", params: dict | None = None, steps: int = 1000, seed: int = 0, *,
                particles: int = 20, problem: HighDimProblem | None = None, exact: dict | None = None,
-               progress: bool = False) -> dict:
+               progress: bool = False, trace_every: int = 0) -> dict:
     """Run a sampler on the model's Potential from prior draws; compare its particles with the exact posterior.
 
     Returns :func:`summarise` of the final particles plus ``"seconds"``,
@@ -580,6 +580,9 @@ def std_ratios(sampler_name: str = "spos", params: dict | None = None, steps: in
     (one chain, its last draws; ``steps`` is ignored). Two pseudo-samplers:
     ``"iid"`` (exact independent draws from the quadrature posterior: what
     ``particles`` perfect samples give) and ``"prior"`` (the initial particles).
+    ``trace_every > 0`` adds ``"trace"``: ``[t, ratio_albedo, ratio_roughness, mean_err_albedo,
+    mean_err_roughness]`` of the particles after every ``trace_every`` steps (a run of fewer steps with a
+    constant step size, e.g. SGLD, is the same trajectory cut short; with annealing it is not).
     """
     problem = problem or setup()
     exact = exact or exact_std(problem)
@@ -596,9 +599,19 @@ def std_ratios(sampler_name: str = "spos", params: dict | None = None, steps: in
     n_steps = steps
     if smp.name == "nuts":
         n_steps = smp.warmup_steps + particles * smp.thin
+    trace = []
+
+    def record(t, state, info):
+        if trace_every and (t + 1) % trace_every == 0:
+            with torch.no_grad():
+                xs = pot.to_constrained(smp.particles(state))
+            v = summarise(xs["albedo"], xs["roughness"], exact)
+            trace.append([t + 1, v["ratio_albedo"], v["ratio_roughness"], v["mean_err_albedo"], v["mean_err_roughness"]])
+
     t0 = time.perf_counter()
     try:
-        res = run(smp, pot, particles=particles, steps=n_steps, seed=seed, progress=progress, checkpoint_every=0)
+        res = run(smp, pot, particles=particles, steps=n_steps, seed=seed, progress=progress, checkpoint_every=0,
+                  callbacks=(record,) if trace_every else ())
     except Exception as e:  # noqa: BLE001  (a benchmark row: report the failure, keep going)
         msg = str(e).splitlines()[0] if str(e) else ""
         if not isinstance(e, SamplerDiverged):
@@ -607,8 +620,11 @@ def std_ratios(sampler_name: str = "spos", params: dict | None = None, steps: in
                 "evaluations": pot.evaluations, "error": msg}
     secs = time.perf_counter() - t0
     x = pot.to_constrained(res.z)
-    return {"sampler": smp.name, "params": smp.params(), "steps": n_steps, "seconds": secs,
-            "evaluations": res.evaluations, **summarise(x["albedo"], x["roughness"], exact)}
+    out = {"sampler": smp.name, "params": smp.params(), "steps": n_steps, "seconds": secs,
+           "evaluations": res.evaluations, **summarise(x["albedo"], x["roughness"], exact)}
+    if trace_every:
+        out["trace"] = trace
+    return out
 
 
 def compare(samplers=("iid", "prior") + SAMPLERS, *, steps: int = 1000, seed: int = 0, params: dict | None = None,

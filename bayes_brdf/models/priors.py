@@ -34,30 +34,43 @@ class Box(TorchDistribution):
     """Uniform on ``[low, high]`` with the density ``1 / (high - low)`` on the closed interval.
 
     (``torch``'s ``Uniform`` gives ``-inf`` at ``x == high``, which float32
-    sigmoids reach; a sampler would then see an infinite energy.)
+    sigmoids reach; a sampler would then see an infinite energy.) The last
+    ``event_dims`` dimensions are event dimensions (like ``.to_event()``); the
+    log-density is a constant, computed once rather than summed per call.
     """
 
     arg_constraints = {}
     has_rsample = True
 
-    def __init__(self, low, high, validate_args=None):
+    def __init__(self, low, high, event_dims: int = 0, validate_args=None, _logc=None):
         self.low, self.high = torch.broadcast_tensors(_tensor(low), _tensor(high))
-        super().__init__(self.low.shape, validate_args=False)
+        shape = self.low.shape
+        k = len(shape) - event_dims
+        self._event_dims = event_dims
+        if _logc is None:
+            _logc = -(self.high - self.low).log()
+            _logc = _logc.sum(dim=tuple(range(k, len(shape)))) if event_dims else _logc
+        self._logc = _logc
+        super().__init__(shape[:k], shape[k:], validate_args=False)
 
     @constraints.dependent_property(is_discrete=False, event_dim=0)
     def support(self):
-        return constraints.interval(self.low, self.high)
+        c = constraints.interval(self.low, self.high)
+        return constraints.independent(c, self._event_dims) if self._event_dims else c
 
     def expand(self, batch_shape, _instance=None):
-        return Box(self.low.expand(batch_shape), self.high.expand(batch_shape))
+        shape = torch.Size(batch_shape) + self.event_shape
+        return Box(self.low.expand(shape), self.high.expand(shape), self._event_dims,
+                   _logc=self._logc.expand(batch_shape))
 
     def rsample(self, sample_shape=torch.Size()):
-        shape = torch.Size(sample_shape) + self.batch_shape
+        shape = torch.Size(sample_shape) + self.low.shape
         u = torch.rand(shape, dtype=self.low.dtype, device=self.low.device)
         return self.low + u * (self.high - self.low)
 
     def log_prob(self, value):
-        return (-(self.high - self.low).log()).expand(torch.broadcast_shapes(value.shape, self.batch_shape))
+        batch = value.shape[:value.dim() - len(self.event_shape)]
+        return self._logc.expand(torch.broadcast_shapes(batch, self.batch_shape))
 
 
 class TruncatedNormal(TorchDistribution):
@@ -110,9 +123,8 @@ class Prior:
         kw = dict(dtype=dtype or torch.get_default_dtype(), device=device)
         lo, hi = torch.full(tuple(shape), float(low), **kw), torch.full(tuple(shape), float(high), **kw)
         if self.kind == "uniform":
-            d = Box(lo, hi)
-        else:
-            d = TruncatedNormal(torch.full_like(lo, self.mean), torch.full_like(lo, self.std), lo, hi)
+            return Box(lo, hi, event_dims=len(shape))
+        d = TruncatedNormal(torch.full_like(lo, self.mean), torch.full_like(lo, self.std), lo, hi)
         return d.to_event(len(shape))
 
     def to_dict(self) -> dict:
