@@ -73,8 +73,8 @@ def main():
         base = {**H.DEFAULT_PARAMS.get(a.grid, {}), **a.params.get(a.grid, {})}
         rows, table = [], {}
         print(f"| {' | '.join(keys)} | steps | std ratio albedo | std ratio roughness | |mean err|/std albedo | "
-              f"|mean err|/std roughness | seconds |")
-        print("|" + "---|" * (len(keys) + 6))
+              f"|mean err|/std roughness | MAD/std albedo | MAD/std roughness | seconds |")
+        print("|" + "---|" * (len(keys) + 8))
         for steps in a.grid_steps or [a.steps]:
             for combo in itertools.product(*(a.grid_params[k] for k in keys)):
                 p = {**base, **dict(zip(keys, combo))}
@@ -84,10 +84,11 @@ def main():
                 rows.append(v)
                 cells = " | ".join(str(c) for c in combo)
                 if "error" in v:
-                    print(f"| {cells} | {steps} | failed: {v['error'][:60]} | | | | {v['seconds']:.1f} |", flush=True)
+                    print(f"| {cells} | {steps} | failed: {v['error'][:60]} | | | | | | {v['seconds']:.1f} |", flush=True)
                 else:
                     print(f"| {cells} | {steps} | {v['ratio_albedo']:.3g} | {v['ratio_roughness']:.3g} | "
-                          f"{v['mean_err_albedo']:.3g} | {v['mean_err_roughness']:.3g} | {v['seconds']:.1f} |", flush=True)
+                          f"{v['mean_err_albedo']:.3g} | {v['mean_err_roughness']:.3g} | {v['mad_albedo']:.2g} | "
+                          f"{v['mad_roughness']:.2g} | {v['seconds']:.1f} |", flush=True)
     if a.json:
         with open(a.json, "w") as f:
             json.dump(rows, f, indent=1, default=str)

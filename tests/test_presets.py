@@ -23,3 +23,13 @@ def test_every_shipped_preset_loads():
     for kind in ("models", "samplers"):
         for name in list_presets(kind):
             assert isinstance(load_preset(kind, name), dict)
+
+
+def test_every_sampler_and_model_preset_builds():
+    from bayes_brdf.models.material import from_preset
+    from bayes_brdf.samplers import make_sampler
+    for name in list_presets("samplers"):
+        sampler, cfg = make_sampler(name)
+        assert cfg.particles >= 1 and cfg.steps >= 1
+    for name in list_presets("models"):
+        assert callable(from_preset(load_preset("models", name)))

@@ -17,7 +17,8 @@ def add_parser(sub):
                                    "checkpoint in --out.")
     f.add_argument("capture", help="capture folder (or its parameters.json / optim.json / observations.json)")
     f.add_argument("--model", default="per_texel", help="model preset name or TOML path (default: %(default)s)")
-    f.add_argument("--sampler", default="spos", help="sampler preset name or TOML path (default: %(default)s)")
+    f.add_argument("--sampler", default=None,
+                   help="sampler preset name or TOML path (default: spos_maps for per_texel models, else spos)")
     f.add_argument("--views", type=int_list, default=None, help="comma-separated view indices to use (default: all)")
     f.add_argument("--resolution", type=positive_int, default=128,
                    help="resample the photos to this resolution; a per_texel model uses as many texels "
@@ -48,9 +49,10 @@ def run(a) -> int:
     table.update(dict(a.model_param))
     if table.get("model") == "per_texel" and "resolution" not in dict(a.model_param):
         table["resolution"] = a.resolution
+    sampler = a.sampler or ("spos_maps" if table.get("model") == "per_texel" else "spos")
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
-    post = infer(table, obs, a.sampler, seed=a.seed, particles=a.particles, steps=a.steps,
+    post = infer(table, obs, sampler, seed=a.seed, particles=a.particles, steps=a.steps,
                  params=dict(a.param) or None, checkpoint=out / "checkpoint.pt", progress=sys.stderr.isatty(),
                  device=a.device)
     post.save(out / "posterior.safetensors")
