@@ -131,7 +131,10 @@ class Posterior:
 
     def to_arviz(self):
         """An ``arviz.InferenceData`` with one chain whose draws are the particles (and ``energy`` in sample_stats)."""
-        import arviz as az
+        try:
+            import arviz as az
+        except ImportError:
+            raise InputError("ArviZ export needs the arviz package", fix="pip install 'bayes-brdf[arviz]'") from None
         post = {k: v.cpu().numpy()[None] for k, v in self.particles.items()}
         return az.from_dict(posterior=post, sample_stats={"energy": self.energies.cpu().numpy()[None]},
                             attrs={k: json.dumps(v, default=str) for k, v in self.meta.items()})

@@ -42,6 +42,8 @@ def main():
     ap.add_argument("--particles", type=int, default=20)
     ap.add_argument("--threads", type=int, default=0, help="torch threads (0: torch's default)")
     ap.add_argument("--noise", action="store_true", help="seeded Laplace noise instead of noiseless observations")
+    ap.add_argument("--init-margin", type=float, default=0.0,
+                    help="clamp the initial prior draws to the central 1 - 2 m of each range (0: plain prior draws)")
     ap.add_argument("--json", default=None, help="also write the rows to this JSON file")
     ap.add_argument("--truth-cache", default=None, help="load / save the exact posterior here (torch.save)")
     a = ap.parse_args()
@@ -62,7 +64,7 @@ def main():
     print()
     if a.grid is None:
         table = H.compare(a.samplers, steps=a.steps, seed=a.seed, params=a.params, problem=prob, exact=ex,
-                          particles=a.particles)
+                          particles=a.particles, init_margin=a.init_margin)
         print(H.markdown(table))
         for name, v in table.items():
             if v["params"]:
@@ -79,7 +81,8 @@ def main():
             for combo in itertools.product(*(a.grid_params[k] for k in keys)):
                 p = {**base, **dict(zip(keys, combo))}
                 t0 = time.perf_counter()
-                v = H.std_ratios(a.grid, p, steps, a.seed, particles=a.particles, problem=prob, exact=ex)
+                v = H.std_ratios(a.grid, p, steps, a.seed, particles=a.particles, problem=prob, exact=ex,
+                                 init_margin=a.init_margin)
                 v["wall"] = time.perf_counter() - t0
                 rows.append(v)
                 cells = " | ".join(str(c) for c in combo)
