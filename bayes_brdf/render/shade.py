@@ -105,7 +105,10 @@ def _chunks(maps: SVBRDF, g: GBuffer, eps: float, chunk_views: int | None):
             e = min(V, s + chunk_views)
             gc = g.views_slice(s, e) if V > chunk_views else g
             kd, rough, ks = (lookup(t, gc) for t in (maps.albedo, maps.roughness, maps.specular))
-            yield s, e, (kd, rough, ks, *cosines(s, e, gc), gc.light_scale[None])
+            sc = memo.get((s, e, "scale"))
+            if sc is None or sc[0] is not g.light_scale:    # one view object, so the native geometry cache hits
+                sc = memo[(s, e, "scale")] = (g.light_scale, gc.light_scale[None])
+            yield s, e, (kd, rough, ks, *cosines(s, e, gc), sc[1])
 
     return n, g, it()
 
