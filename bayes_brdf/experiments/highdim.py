@@ -55,8 +55,7 @@ over-disperse the albedo (0.01: +10-15%, the preset's 0.05: x2); SVGD and
 multi-start SGD collapse (MAD / std < 0.1 against 0.6). See
 ``benchmarks/bench_highdim_std.py`` for the commands.
 
-Run ``python -m bayes_brdf.experiments.highdim`` (or
-``benchmarks/bench_highdim_std.py``) for the table of all samplers.
+Run ``python benchmarks/bench_highdim_std.py`` for the table of all samplers.
 """
 from __future__ import annotations
 
@@ -729,37 +728,3 @@ def markdown(table: dict) -> str:
                      f"{v['mean_err_albedo']:.3g} | {v['mean_err_roughness']:.3g} | {v['mad_albedo']:.2g} | "
                      f"{v['mad_roughness']:.2g} | {v['steps']} | {v['seconds']:.1f} |")
     return "\n".join(lines)
-
-
-def main(argv=None):
-    import argparse
-    import json
-
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--steps", type=int, default=1000)
-    ap.add_argument("--samplers", nargs="+", default=["iid", "prior", *SAMPLERS])
-    ap.add_argument("--params", type=json.loads, default={}, help='JSON {sampler: {param: value}}')
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--particles", type=int, default=20)
-    ap.add_argument("--threads", type=int, default=0, help="torch threads (0: leave as is)")
-    ap.add_argument("--noise", action="store_true", help="seeded Laplace noise instead of noiseless observations")
-    ap.add_argument("--init-margin", type=float, default=0.0,
-                    help="clamp the initial prior draws to the central 1 - 2 m of each range (0: plain prior draws)")
-    a = ap.parse_args(argv)
-    if a.threads:
-        torch.set_num_threads(a.threads)
-    prob = setup(HighDimSetup(noise=a.noise, seed=a.seed))
-    ex = exact_std(prob)
-    print(describe(prob, ex))
-    print()
-    table = compare(a.samplers, steps=a.steps, seed=a.seed, params=a.params, problem=prob, exact=ex,
-                    particles=a.particles, init_margin=a.init_margin)
-    print(markdown(table))
-    for name, v in table.items():
-        if v["params"]:
-            print(f"{name}: {json.dumps(v['params'], default=str)}")
-    return table
-
-
-if __name__ == "__main__":
-    main()

@@ -134,6 +134,16 @@ def precond_update(p: Preconditioner, grad: Tensor, beta2: float, eps: float) ->
     return Preconditioner(v, c), scale[:, None, :]
 
 
+def adam_direction(m: Tensor, v: Tensor, count: int, g: Tensor, beta1: float, beta2: float,
+                   eps: float) -> tuple[Tensor, Tensor, Tensor]:
+    """One Adam moment update with gradient-like ``g``; returns ``(direction, m, v)`` where the step is
+    ``step_size * direction`` (``count`` is the 1-based step number for the bias correction)."""
+    m = beta1 * m + (1 - beta1) * g
+    v = beta2 * v + (1 - beta2) * g * g
+    mh, vh = m / (1 - beta1 ** count), v / (1 - beta2 ** count)
+    return mh / (vh.sqrt() + eps), m, v
+
+
 def anneal(t: int, horizon: int, delta: float) -> float:
     """The annealing weight ``gamma(t) = tanh((1.4 t / T)^delta)`` of Eq. (6)."""
     if horizon <= 0:

@@ -13,7 +13,7 @@ from typing import NamedTuple
 import torch
 from torch import Tensor
 
-from .base import Sampler
+from .base import Sampler, adam_direction
 
 
 class MultistartState(NamedTuple):
@@ -47,10 +47,8 @@ class MultistartSGD(Sampler):
         u, grad = potential.value_and_grad(state.z, jacobian=self.jacobian)
         m, v, c = state.m, state.v, state.count + 1
         if self.optimizer == "adam":
-            m = self.adam_beta1 * m + (1 - self.adam_beta1) * grad
-            v = self.adam_beta2 * v + (1 - self.adam_beta2) * grad * grad
-            mh, vh = m / (1 - self.adam_beta1 ** c), v / (1 - self.adam_beta2 ** c)
-            z = state.z - self.step_size * mh / (vh.sqrt() + self.adam_eps)
+            d, m, v = adam_direction(m, v, c, grad, self.adam_beta1, self.adam_beta2, self.adam_eps)
+            z = state.z - self.step_size * d
         else:
             z = state.z - self.step_size * grad
         return MultistartState(z, m, v, c), {"energy": u}

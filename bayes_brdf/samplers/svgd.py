@@ -16,7 +16,7 @@ import torch
 from torch import Tensor
 
 from ..errors import InputError
-from .base import Sampler, anneal
+from .base import Sampler, adam_direction, anneal
 from .kernels import kernel_apply, rbf_median
 
 
@@ -60,10 +60,8 @@ class SVGD(Sampler):
         phi = (rep - kernel_apply(K, gam * grad)) / n
         m, v, c = state.m, state.v, state.count + 1
         if self.optimizer == "adam":
-            m = self.adam_beta1 * m + (1 - self.adam_beta1) * phi
-            v = self.adam_beta2 * v + (1 - self.adam_beta2) * phi * phi
-            mh, vh = m / (1 - self.adam_beta1 ** c), v / (1 - self.adam_beta2 ** c)
-            z = z + self.step_size * mh / (vh.sqrt() + self.adam_eps)
+            d, m, v = adam_direction(m, v, c, phi, self.adam_beta1, self.adam_beta2, self.adam_eps)
+            z = z + self.step_size * d
         else:
             z = z + self.step_size * phi
         return SVGDState(z, m, v, c), {"energy": u, "gamma": gam}
