@@ -1,5 +1,5 @@
 """bayes-brdf: Bayesian SVBRDF acquisition with uncertainty and capture guidance."""
-from . import io, materials, models, render, samplers
+from . import guidance, io, materials, models, render, samplers, uncertainty
 from .errors import InputError
 from .inference import infer
 from .models import priors
@@ -7,5 +7,5 @@ from .observations import Observations
 from .posterior import Posterior
 
 __version__ = "0.1.0"
-__all__ = ["render", "io", "materials", "models", "priors", "samplers", "infer", "Posterior", "Observations",
+__all__ = ["render", "uncertainty", "guidance", "io", "materials", "models", "priors", "samplers", "infer", "Posterior", "Observations",
            "InputError", "__version__"]

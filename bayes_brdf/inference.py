@@ -29,7 +29,7 @@ def resolve_model(model):
 
 def infer(model, observations, sampler="spos", *, seed: int = 0, particles: int | None = None,
           steps: int | None = None, params: dict | None = None, checkpoint=None, progress: bool | None = None,
-          dtype=torch.float32, device=None, callbacks=()) -> Posterior:
+          dtype=torch.float32, device=None, callbacks=(), z0=None) -> Posterior:
     """Sample the posterior of ``model`` given ``observations`` with ``sampler``.
 
     Args:
@@ -42,6 +42,8 @@ def infer(model, observations, sampler="spos", *, seed: int = 0, particles: int 
         checkpoint: a file to checkpoint to and resume from.
         progress: show a progress bar (default: when stderr is a terminal).
         device: where to run; by default the observations' device.
+        z0: starting particles ``[n, D]`` in unconstrained space (e.g. a previous posterior's ``z``, to
+            warm-start after adding views); by default prior draws.
 
     Example:
         >>> import bayes_brdf as bb
@@ -66,11 +68,19 @@ def infer(model, observations, sampler="spos", *, seed: int = 0, particles: int 
     pot = Potential(model, (data,))
     if progress is None:
         progress = sys.stderr.isatty()
-    res = run(smp, pot, seed=seed, checkpoint=checkpoint, progress=progress, callbacks=callbacks, **cfg.run_kwargs())
+    kw = cfg.run_kwargs()
+    if z0 is not None:
+        z0 = torch.as_tensor(z0, dtype=dtype, device=data.device)
+        if z0.dim() != 2 or z0.shape[1] != pot.dim:
+            raise InputError(f"z0 has shape {tuple(z0.shape)}, expected [particles, {pot.dim}]",
+                             fix="pass a posterior's z from the same model")
+        kw["particles"] = z0.shape[0]
+    res = run(smp, pot, seed=seed, checkpoint=checkpoint, progress=progress, callbacks=callbacks, z0=z0, **kw)
     with torch.no_grad():
         energies = pot.energy(res.z, jacobian=False)
     meta = {"sampler": smp.name, "params": smp.params(), "run": vars(cfg), "seed": seed,
             "seconds": res.seconds, "evaluations": res.evaluations, "steps": res.steps,
             "model": model.to_dict() if isinstance(model, MaterialModel) else getattr(model, "__name__", str(model)),
-            "observations": observations.meta if isinstance(observations, Observations) else {}}
+            "observations": observations.meta if isinstance(observations, Observations) else {},
+            "surface": {"size": data.observations.surface.size, "grid": data.observations.surface.grid}}
     return Posterior(pot.to_constrained(res.z), energies, z=res.z, meta=meta, potential=pot, model=model)

@@ -75,6 +75,26 @@ class Observations:
         return replace(self, views=[self.views[i] for i in idx], images=self.images[t],
                        mask=pick(self.mask), saturated=pick(self.saturated), meta=dict(self.meta))
 
+    def append(self, other: "Observations") -> "Observations":
+        """These observations followed by ``other``'s (same surface and resolution), e.g. a new capture round."""
+        if tuple(other.resolution) != tuple(self.resolution):
+            raise InputError(f"cannot append {other.resolution} images to {self.resolution} observations",
+                             fix="capture the new views at the resolution of the existing ones")
+        if other.surface != self.surface:
+            raise InputError("cannot append observations of a different surface")
+        dev = self.images.device
+
+        def cat(a, b, fill):
+            if a is None and b is None:
+                return None
+            a = a if a is not None else torch.full(self.images.shape[:3], fill, dtype=torch.bool, device=dev)
+            b = b if b is not None else torch.full(other.images.shape[:3], fill, dtype=torch.bool, device=dev)
+            return torch.cat([a.to(dev), b.to(dev)])
+        return replace(self, views=self.views + list(other.views),
+                       images=torch.cat([self.images, other.images.to(dev, self.images.dtype)]),
+                       mask=cat(self.mask, other.mask, True), saturated=cat(self.saturated, other.saturated, False),
+                       meta=dict(self.meta))
+
     def to(self, *args, **kwargs) -> "Observations":
         mv = lambda x: None if x is None else x.to(*args, **{k: v for k, v in kwargs.items() if k != "dtype"})  # noqa: E731
         return replace(self, images=self.images.to(*args, **kwargs), mask=mv(self.mask), saturated=mv(self.saturated))

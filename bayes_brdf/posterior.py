@@ -18,6 +18,18 @@ from .errors import InputError
 FORMAT = "bayes-brdf-posterior/1"
 
 
+def _model_from_meta(meta: dict):
+    """The built-in material model recorded in ``meta`` (so a loaded posterior can render), else ``None``."""
+    m = meta.get("model")
+    if not isinstance(m, dict) or "fixed map" in m.values():
+        return None
+    from .models.material import from_preset
+    try:
+        return from_preset(m)
+    except InputError:
+        return None
+
+
 class Posterior:
     """Samples ``{site: [n, ...]}`` (constrained) with their energies ``[n]`` (``-log f(x)``, Eq. 3).
 
@@ -66,6 +78,13 @@ class Posterior:
             return {k: self.std(k) for k in self.particles}
         x = self._site(site)
         return x.std(0) if x.shape[0] > 1 else torch.zeros_like(x[0])
+
+    @property
+    def surface(self):
+        """The sample surface the observations showed (from the metadata), or ``None``."""
+        from .render.surface import PlanarSample
+        s = self.meta.get("surface")
+        return PlanarSample(**s) if isinstance(s, dict) else None
 
     def best(self) -> int:
         """Index of the particle with the highest target ``f(x)``."""
@@ -127,7 +146,8 @@ class Posterior:
         if md.get("format") != FORMAT:
             raise InputError("not a bayes-brdf posterior file", where=path)
         parts = {k[5:]: v for k, v in t.items() if k.startswith("site/")}
-        return cls(parts, t["energies"], z=t.get("z"), meta=json.loads(md.get("meta", "{}")))
+        meta = json.loads(md.get("meta", "{}"))
+        return cls(parts, t["energies"], z=t.get("z"), meta=meta, model=_model_from_meta(meta))
 
     def to_arviz(self):
         """An ``arviz.InferenceData`` with one chain whose draws are the particles (and ``energy`` in sample_stats)."""

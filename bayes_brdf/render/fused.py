@@ -129,6 +129,8 @@ def _route(kd, r, ks, nl, nv, nh, vh, scale, torch_compile: bool = True) -> str:
     if nl.shape[2] <= native.MAX_LIGHTS and native.available(kd):
         return "native"
     full = all(tuple(t.shape[-2:]) == hw for t in (kd, r, ks))
+    if torch_compile == "auto":  # only try torch.compile (slow to probe) when the native kernel cannot serve
+        torch_compile = compile_available()
     return "compiled" if full and torch_compile else "eager"
 
 
@@ -182,7 +184,7 @@ def get_kernel(backend: str, work: int | None = None, loss: bool = False):
         return fn
     if backend == "auto":
         big = work is None or work >= AUTO_COMPILE_MIN_WORK
-        return functools.partial(fn, torch_compile=big and compile_available())
+        return functools.partial(fn, torch_compile="auto" if big else False)
     raise InputError(f"unknown shading backend '{backend}'", fix="use auto, eager or compiled")
 
 

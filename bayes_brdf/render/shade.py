@@ -125,12 +125,24 @@ def shade(maps: SVBRDF, g: GBuffer, *, ks_factor: bool = True, eps: float = 1e-8
     ``fused.AUTO_COMPILE_MIN_WORK`` pixel evaluations, else eager). Pixels outside the
     sample are 0.
     """
+    parts = [img for _, _, img in shade_chunks(maps, g, ks_factor=ks_factor, eps=eps, chunk_views=chunk_views,
+                                                backend=backend)]
+    img = parts[0] if len(parts) == 1 else torch.cat(parts, dim=1)
+    return img.permute(0, 1, 3, 4, 2) if channels_last else img
+
+
+def shade_chunks(maps: SVBRDF, g: GBuffer, *, ks_factor: bool = True, eps: float = 1e-8,
+                 chunk_views: int | None = None, backend: str = "auto"):
+    """Yield ``(start, stop, radiance [n, stop - start, 3, H, W])`` over chunks of the views of ``g``.
+
+    For consumers that reduce each chunk (image-space std, view scoring) so the full
+    ``[n, V, ...]`` stack never exists; the geometry cached on ``g`` is reused across calls.
+    """
     n, g, chunks = _chunks(maps, g, eps, chunk_views)
     V, (h, w) = g.num_views, g.resolution
     kernel = fused.get_kernel(backend, n * V * h * w)
-    parts = [kernel(*args, ks_factor).expand(n, e - s, 3, h, w) for s, e, args in chunks]
-    img = parts[0] if len(parts) == 1 else torch.cat(parts, dim=1)
-    return img.permute(0, 1, 3, 4, 2) if channels_last else img
+    for s, e, args in chunks:
+        yield s, e, kernel(*args, ks_factor).expand(n, e - s, 3, h, w)
 
 
 class Renderer:

@@ -1,0 +1,162 @@
+"""Which views to take next: greedy argmax of mutual information (Algorithm 1), batched top-K with hypersphere
+exclusion, and the baselines (low-discrepancy directions, max image-space std).
+
+A view's position in *configuration space* is its unit camera direction and unit light direction seen from
+the sample centre, ``theta = (c, l)``; the distance between two views is the RMS chord
+``sqrt((|c - c'|^2 + |l - l'|^2) / 2)`` (for collocated views: the chord between the camera directions).
+``radius`` is given in degrees of that chord's angle: after each pick, candidates closer than it are
+removed for the rest of the batch (Sec. 3.4.2).
+
+Example:
+    >>> import torch
+    >>> from bayes_brdf.render import SVBRDF, PlanarSample, collocated_views
+    >>> maps = SVBRDF(torch.rand(8, 3, 8, 8), torch.rand(8, 1, 8, 8) * .5 + .2,
+    ...               torch.full((3, 1, 1), .04), torch.tensor([0., 0, 1]).view(3, 1, 1))
+    >>> cands = collocated_views(50, 3.0, camera="rectified", resolution=8, max_zenith=60)
+    >>> rec = recommend(maps, cands, k=3, radius=15, surface=PlanarSample(2.0))
+    >>> len(rec.indices), rec.method
+    (3, 'mi')
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import torch
+from torch import Tensor
+
+from ..errors import InputError
+from .scores import CandidateScores, score_views
+
+METHODS = ("mi", "std", "sobol", "random")
+
+
+def configuration(views, target=(0.0, 0.0, 0.0)) -> Tensor:
+    """``[V, 6]``: unit camera direction and unit (first) light direction of each view, from ``target``."""
+    t = torch.tensor(target, dtype=torch.float64)
+    rows = []
+    for v in views:
+        c = torch.tensor(v.camera.position, dtype=torch.float64) - t
+        l = torch.tensor(v.lights[0].position, dtype=torch.float64) - t
+        rows.append(torch.cat([c / c.norm().clamp_min(1e-12), l / l.norm().clamp_min(1e-12)]))
+    return torch.stack(rows)
+
+
+def distances(views_a, views_b) -> Tensor:
+    """``[A, B]`` configuration-space distance (RMS chord of camera and light directions)."""
+    a, b = configuration(views_a), configuration(views_b)
+    return torch.cdist(a, b) / math.sqrt(2)
+
+
+def _chord(radius_deg: float) -> float:
+    return 2 * math.sin(math.radians(radius_deg) / 2)
+
+
+@dataclass
+class Recommendation:
+    """Picked candidate ``indices`` (best first), with the ``scores`` they were ranked by (if any)."""
+
+    indices: list[int]
+    method: str
+    scores: CandidateScores | None = None
+    views: list = field(default_factory=list)
+
+    def to_dict(self) -> dict:
+        d = {"indices": self.indices, "method": self.method,
+             "views": [v.to_dict() for v in self.views]}
+        if self.scores is not None:
+            d["picked_mi"] = [float(self.scores.mi[i]) for i in self.indices]
+            d["picked_mean_std"] = [float(self.scores.mean_std[i]) for i in self.indices]
+            d["scoring_seconds"] = self.scores.seconds
+        return d
+
+
+def top_k(values: Tensor, candidates, k: int, radius: float = 0.0, exclude=()) -> list[int]:
+    """Greedy batch: repeatedly take the best remaining candidate, then drop all within ``radius`` degrees.
+
+    ``exclude``: indices that may not be picked (e.g. views already taken). Returns at most ``k`` indices
+    (fewer when the exclusion leaves no candidate).
+    """
+    vals = values.double().clone()
+    alive = torch.ones(len(candidates), dtype=torch.bool)
+    for i in exclude:
+        alive[int(i)] = False
+    conf = configuration(candidates) if radius > 0 else None
+    chord = _chord(radius)
+    out = []
+    while len(out) < k and bool(alive.any()):
+        i = int(torch.where(alive, vals, torch.full_like(vals, -math.inf)).argmax())
+        out.append(i)
+        alive[i] = False
+        if conf is not None:
+            alive &= (torch.linalg.vector_norm(conf - conf[i], dim=1) / math.sqrt(2)) >= chord
+    return out
+
+
+def low_discrepancy(candidates, k: int, *, offset: int = 0, seed: int = 0, exclude=()) -> list[int]:
+    """The baseline: the next ``k`` points of a scrambled Sobol sequence of camera directions (uniform in
+    solid angle over the candidates' zenith range), each mapped to the nearest free candidate camera;
+    among candidates sharing that camera (a light stage), the light is picked at random.
+
+    ``offset`` is how many baseline views were taken before, so successive calls continue one sequence.
+    """
+    conf = configuration(candidates)
+    cam = conf[:, :3]
+    cmin = float(cam[:, 2].min().clamp(-1, 1))
+    eng = torch.quasirandom.SobolEngine(2, scramble=True, seed=seed)
+    if offset:
+        eng.fast_forward(offset)
+    pts = eng.draw(k, dtype=torch.float64)
+    cos_t = 1 - pts[:, 0] * (1 - cmin)
+    sin_t = (1 - cos_t ** 2).clamp_min(0).sqrt()
+    phi = 2 * math.pi * pts[:, 1]
+    dirs = torch.stack([sin_t * phi.cos(), sin_t * phi.sin(), cos_t], -1)
+    free = torch.ones(len(candidates), dtype=torch.bool)
+    for i in exclude:
+        free[int(i)] = False
+    g = torch.Generator().manual_seed(seed * 7919 + offset)
+    out = []
+    for d in dirs:
+        if not bool(free.any()):
+            break
+        dist = torch.where(free, (cam - d).norm(dim=1), torch.full((len(candidates),), math.inf, dtype=torch.float64))
+        near = torch.nonzero(dist <= dist.min() + 1e-9).flatten()
+        i = int(near[torch.randint(len(near), (1,), generator=g)])
+        out.append(i)
+        free[i] = False
+    return out
+
+
+def recommend(post, candidates, k: int = 1, *, method: str = "mi", radius: float = 0.0, exclude=(),
+              surface=None, seed: int = 0, offset: int = 0, scores: CandidateScores | None = None,
+              **score_kw) -> Recommendation:
+    """Recommend ``k`` of ``candidates`` to capture next.
+
+    Args:
+        post: a :class:`~bayes_brdf.posterior.Posterior` (or particle maps); unused by ``"sobol"``/``"random"``.
+        method: ``"mi"`` (mutual information, Eq. 18), ``"std"`` (max mean image-space std, a baseline),
+            ``"sobol"`` (low-discrepancy directions, the paper's baseline) or ``"random"``.
+        radius: exclusion radius in degrees (configuration space) between picks of one batch; ``k = 1``
+            is Algorithm 1's greedy step.
+        exclude: candidate indices that may not be picked (already captured).
+        scores: reuse scores computed before (skips rendering).
+        score_kw: passed to :func:`~bayes_brdf.guidance.scores.score_views` (``estimator``, ``noise_var``...).
+    """
+    candidates = list(candidates)
+    if method not in METHODS:
+        raise InputError(f"unknown recommendation method '{method}'", fix=f"use one of {', '.join(METHODS)}")
+    if k < 1:
+        raise InputError(f"k must be >= 1, got {k}")
+    if radius < 0:
+        raise InputError(f"radius must be >= 0 degrees, got {radius}")
+    if method == "sobol":
+        idx = low_discrepancy(candidates, k, offset=offset, seed=seed, exclude=exclude)
+    elif method == "random":
+        free = [i for i in range(len(candidates)) if i not in set(int(j) for j in exclude)]
+        g = torch.Generator().manual_seed(seed * 7919 + offset)
+        idx = [free[int(j)] for j in torch.randperm(len(free), generator=g)[:k]]
+    else:
+        if scores is None:
+            scores = score_views(post, candidates, surface, seed=seed, **score_kw)
+        idx = top_k(scores.mi if method == "mi" else scores.mean_std, candidates, k, radius, exclude)
+    return Recommendation(idx, method, scores, [candidates[i] for i in idx])

@@ -1,0 +1,214 @@
+"""Uncertainty: parameter-space std (Eq. 9), image-space std (Eq. 11), posterior-predictive checks, and figures.
+
+* :func:`parameter_std` -- per-site std maps over the particles (Eq. 9).
+* :func:`image_std` -- per-pixel std over the particles' renders of any views
+  (Eq. 11), batched over particles and chunked over views.
+* :func:`predictive_cdf` -- where an observed pixel falls in the
+  posterior-predictive distribution (particles' renders plus the likelihood's
+  noise): the PIT value, from which interval coverage follows.
+* :func:`write_map` -- a value map as EXR (the numbers) and a colour-mapped PNG
+  with a colour bar (one fixed colormap, :data:`CMAP`, for every uncertainty
+  and error figure, like the paper's).
+
+Example:
+    >>> import torch
+    >>> from bayes_brdf.posterior import Posterior
+    >>> post = Posterior({"roughness": torch.tensor([[0.2], [0.4], [0.3]])}, torch.zeros(3))
+    >>> parameter_std(post)["roughness"].tolist()
+    [0.10000000149011612]
+"""
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from .errors import InputError
+from .render.gbuffer import GBufferCache
+from .render.maps import SVBRDF
+from .render.shade import shade_chunks
+from .render.surface import PlanarSample
+
+#: the one colormap of every uncertainty / error figure
+CMAP = "inferno"
+_CACHE = GBufferCache(max_entries=16)
+
+
+def parameter_std(post) -> dict[str, Tensor]:
+    """Parameter-space uncertainty (Eq. 9): ``{site: std over particles}`` (Bessel-corrected)."""
+    return post.std()
+
+
+def _particle_maps(post) -> SVBRDF:
+    if isinstance(post, SVBRDF):
+        if post.num_particles is None:
+            raise InputError("image-space std needs maps with a particle dimension [n, C, H, W]")
+        return post
+    return post.maps("all")
+
+
+def _surface(post, surface):
+    if surface is not None:
+        return surface
+    s = getattr(post, "surface", None)
+    if s is None:
+        raise InputError("the sample surface of this posterior is unknown",
+                         fix="pass surface=PlanarSample(size) (the capture's observations.surface)")
+    return s
+
+
+def particle_renders(post, views, surface: PlanarSample | None = None, *, chunk_views: int | None = None):
+    """Yield ``(start, stop, renders [n, v, 3, H, W], mask [v, H, W])`` for chunks of ``views``: every particle, every view.
+
+    ``post`` is a :class:`~bayes_brdf.posterior.Posterior` (with its model) or
+    particle maps (:class:`SVBRDF` with a particle dimension). Memory is
+    bounded by ``chunk_views`` (default: about 64 M values per chunk).
+    """
+    maps = _particle_maps(post)
+    surface = _surface(post, surface)
+    views = list(views)
+    if not views:
+        raise InputError("no views given", fix="pass at least one View")
+    g = _CACHE.get(tuple(views), surface, dtype=maps.albedo.dtype, device=maps.albedo.device)
+    n, (h, w) = maps.num_particles, g.resolution
+    if chunk_views is None:
+        chunk_views = max(1, (64 * 2**20) // max(1, n * h * w * 3))
+    with torch.no_grad():
+        for s, e, img in shade_chunks(maps, g, chunk_views=chunk_views):
+            yield s, e, img, g.mask[s:e]
+
+
+def image_std(post, views, surface: PlanarSample | None = None, *, return_mean: bool = False,
+              chunk_views: int | None = None):
+    """Image-space uncertainty (Eq. 11): per-pixel std ``[V, H, W, 3]`` of the particles' renders of ``views``.
+
+    With ``return_mean=True`` returns ``(std, mean)``. Pixels off the sample are 0.
+
+    Example:
+        >>> import torch
+        >>> from bayes_brdf.render import SVBRDF, PlanarSample, collocated_views
+        >>> maps = SVBRDF(torch.rand(4, 3, 8, 8), torch.rand(4, 1, 8, 8) * .5 + .2,
+        ...               torch.full((3, 1, 1), .04), torch.tensor([0., 0, 1]).view(3, 1, 1))
+        >>> image_std(maps, collocated_views(2, 3.0, resolution=8), PlanarSample(2.0)).shape
+        torch.Size([2, 8, 8, 3])
+    """
+    stds, means = [], []
+    for _, _, r, _ in particle_renders(post, views, surface, chunk_views=chunk_views):
+        stds.append(r.std(0) if r.shape[0] > 1 else torch.zeros_like(r[0]))
+        means.append(r.mean(0))
+    std = torch.cat(stds).permute(0, 2, 3, 1)
+    return (std, torch.cat(means).permute(0, 2, 3, 1)) if return_mean else std
+
+
+def predictive_cdf(post, views, images: Tensor, surface: PlanarSample | None = None, *,
+                   sigma: float | None = None, kind: str | None = None, chunk_views: int | None = None):
+    """PIT values ``F(y) [V, H, W, 3]`` of observed ``images`` under the posterior predictive, and the renders' std.
+
+    The predictive of a pixel is the mixture over particles of the model's
+    noise (``Laplace(R(x_i), sigma)``, or Gaussian) around each particle's
+    render; ``F`` is its CDF at the observed value, exactly (no quantiles of
+    samples). A pixel lies in the central ``p`` interval iff
+    ``|F - 1/2| <= p/2``; calibrated predictions give uniform ``F``.
+    ``sigma``/``kind`` default to the posterior's model (``model.sigma``,
+    ``model.likelihood``). Returns ``(F, std, mean)``, each ``[V, H, W, 3]``.
+    """
+    model = getattr(post, "model", None)
+    sigma = float(sigma if sigma is not None else getattr(model, "sigma", 0) or 0)
+    kind = kind or getattr(model, "likelihood", "laplace")
+    if not sigma > 0:
+        raise InputError("the predictive needs the likelihood's noise scale", fix="pass sigma= (image units)")
+    y = torch.as_tensor(images)
+    Fs, stds, means = [], [], []
+    for s, e, r, _ in particle_renders(post, views, surface, chunk_views=chunk_views):
+        t = (y[s:e].to(r).permute(0, 3, 1, 2)[None] - r) / sigma
+        if kind == "laplace":
+            cdf = torch.where(t < 0, 0.5 * torch.exp(t.clamp_max(0)), 1 - 0.5 * torch.exp(-t.clamp_min(0)))
+        else:
+            cdf = 0.5 * (1 + torch.erf(t / math.sqrt(2)))
+        Fs.append(cdf.mean(0))
+        stds.append(r.std(0) if r.shape[0] > 1 else torch.zeros_like(r[0]))
+        means.append(r.mean(0))
+    cat = lambda xs: torch.cat(xs).permute(0, 2, 3, 1)  # noqa: E731
+    return cat(Fs), cat(stds), cat(means)
+
+
+def coverage(pit: Tensor, levels=(0.5, 0.9)) -> dict[str, float]:
+    """Fraction of PIT values inside each central interval: ``{"50": ..., "90": ...}``."""
+    p = pit.reshape(-1)
+    if p.numel() == 0:
+        raise InputError("no pixels to measure coverage on")
+    return {f"{round(100 * q)}": float(((p - 0.5).abs() <= q / 2).float().mean()) for q in levels}
+
+
+def correlations(predicted: Tensor, error: Tensor) -> dict[str, float]:
+    """Pearson and Spearman correlation between predicted std and absolute error (flattened)."""
+    from scipy.stats import pearsonr, spearmanr
+
+    a = predicted.reshape(-1).double().cpu().numpy()
+    b = error.reshape(-1).double().cpu().numpy()
+    if a.size < 3 or np.ptp(a) == 0 or np.ptp(b) == 0:
+        return {"pearson": float("nan"), "spearman": float("nan")}
+    return {"pearson": float(pearsonr(a, b)[0]), "spearman": float(spearmanr(a, b)[0])}
+
+
+# ------------------------------------------------------------------ figures
+def colorize(x, vmin: float = 0.0, vmax: float | None = None, cmap: str = CMAP) -> np.ndarray:
+    """A ``[H, W]`` value map as ``[H, W, 3]`` uint8 through ``cmap`` (``vmax``: the 99th percentile by default)."""
+    import matplotlib
+
+    a = np.asarray(torch.as_tensor(x).detach().cpu().double())
+    if vmax is None:
+        fin = a[np.isfinite(a)]
+        vmax = float(np.percentile(fin, 99)) if fin.size else 1.0
+    vmax = vmax if vmax > vmin else vmin + 1e-12
+    t = np.clip((np.nan_to_num(a, nan=vmin) - vmin) / (vmax - vmin), 0, 1)
+    return (matplotlib.colormaps[cmap](t)[..., :3] * 255 + 0.5).astype(np.uint8)
+
+
+def _scalar(img) -> Tensor:
+    t = torch.as_tensor(img).detach().float().cpu()
+    if t.dim() == 3 and t.shape[0] in (1, 2, 3) and t.shape[-1] not in (1, 2, 3):
+        t = t.movedim(0, -1)  # channel-first map
+    return t.mean(-1) if t.dim() == 3 else t
+
+
+def write_map(path, value, *, title: str = "", vmin: float = 0.0, vmax: float | None = None,
+              unit: str = "", exr: bool = True) -> Path:
+    """Write ``value`` (``[H, W]``, ``[H, W, C]`` or channel-first ``[C, H, W]``) as ``path.exr`` and a
+    colour-mapped ``path.png`` with a colour bar (channels are averaged for the PNG). Returns the PNG path."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from .io import write_exr
+
+    path = Path(path).with_suffix("")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    t = torch.as_tensor(value).detach().float().cpu()
+    if exr:
+        e = t.movedim(0, -1) if (t.dim() == 3 and t.shape[0] in (1, 3) and t.shape[-1] not in (1, 3)) else t
+        e = e[..., None] if e.dim() == 2 else e
+        write_exr(path.with_suffix(".exr"), e.expand(*e.shape[:2], 3) if e.shape[-1] != 3 else e)
+    s = _scalar(t).numpy()
+    if vmax is None:
+        fin = s[np.isfinite(s)]
+        vmax = float(np.percentile(fin, 99)) if fin.size else 1.0
+    vmax = vmax if vmax > vmin else vmin + 1e-12
+    h, w = s.shape
+    fig, ax = plt.subplots(figsize=(3.6, 3.0), dpi=100)
+    im = ax.imshow(s, cmap=CMAP, vmin=vmin, vmax=vmax, interpolation="nearest")
+    ax.set_axis_off()
+    if title:
+        ax.set_title(title, fontsize=9)
+    cb = fig.colorbar(im, ax=ax, fraction=0.046, pad=0.04)
+    cb.ax.tick_params(labelsize=7)
+    if unit:
+        cb.set_label(unit, fontsize=8)
+    fig.tight_layout()
+    png = path.with_suffix(".png")
+    fig.savefig(png)
+    plt.close(fig)
+    return png
