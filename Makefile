@@ -11,13 +11,11 @@ setup:
 	@bash scripts/setup.sh
 
 demo: setup
-	$(BB) render wood --views fibonacci:8 --resolution 128 --out out/demo/wood
-	$(BB) inspect out/demo/wood
+	$(BB) demo --out out/demo/story
 	@if [ -d $(SHARED)/captures/card_blue ]; then \
-	  $(BB) inspect $(SHARED)/captures/card_blue --resolution 128 && \
-	  $(BB) render leather --capture $(SHARED)/captures/card_blue --resolution 128 --out out/demo/leather_at_card_blue; \
+	  $(BB) recommend $(SHARED)/captures/card_blue --views 0,2,4,6,8 --resolution 32 --steps 1500 --k 2 --out out/demo/card_blue; \
 	else echo "demo: $(SHARED) not found, skipping the real-capture part"; fi
-	@echo "demo: outputs in $(CURDIR)/out/demo (preview_*.png are sRGB previews, view_*.exr linear radiance)"
+	@echo "demo: open $(CURDIR)/out/demo/story/report.html in a browser"
 
 test: setup
 	$(PY) -m pytest -q tests bayes_brdf --doctest-modules

@@ -8,7 +8,12 @@ Commands (``bayes-brdf COMMAND --help`` for each):
 * ``inspect CAPTURE``  -- what a capture (any supported format) contains.
 * ``infer CAPTURE``    -- sample the posterior of a material model with any sampler
   (name or preset file); writes the posterior, mean and std maps.
+* ``fit CAPTURE``      -- fit on some views, hold out the rest: uncertainty maps, held-out error,
+  correlation and coverage numbers.
+* ``recommend CAPTURE`` -- rank candidate views (held-out or generated) by mutual information.
+* ``demo``             -- the whole story on a synthetic material, with an HTML report.
 * ``compare``          -- the sampler comparison table (the paper's Table 1).
+* ``experiment NAME``  -- one of the paper's figures on synthetic data (``list`` shows them).
 
 Bad input prints ONE line ``bayes-brdf: error: ...`` and exits with code 2.
 """
@@ -25,6 +30,10 @@ from ..errors import InputError
 from . import compare as compare_cmd
 from .common import positive_float, positive_int
 from . import infer as infer_cmd
+from . import experiment as experiment_cmd
+from . import fit as fit_cmd
+from . import recommend as recommend_cmd
+from . import demo as demo_cmd
 
 
 class _Parser(argparse.ArgumentParser):
@@ -161,7 +170,11 @@ def build_parser() -> argparse.ArgumentParser:
                    help="capture format (default: %(default)s, detected from the files)")
     i.set_defaults(func=cmd_inspect)
     infer_cmd.add_parser(sub)
+    fit_cmd.add_parser(sub)
+    recommend_cmd.add_parser(sub)
+    demo_cmd.add_parser(sub)
     compare_cmd.add_parser(sub)
+    experiment_cmd.add_parser(sub)
     return p
 
 

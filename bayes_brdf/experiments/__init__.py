@@ -1,1 +1,46 @@
-"""The paper's experiments, each reproducible from one function (and a CLI command)."""
+"""The paper's experiments, each reproducible from one function and one command.
+
+Every experiment module has ``DESCRIPTION``, ``PRESETS`` (``"small"``: minutes or less on 2 CPU cores,
+what CI runs; ``"full"``: the paper-sized run, documented in ``docs/experiments.md``) and
+``run(out, preset="small", seed=0, progress=False, **overrides) -> dict``, which writes PNG figures and
+``<name>.json`` (the numbers) into ``out`` and returns the numbers.
+
+``bayes-brdf experiment NAME [--preset small|full] [--set key=value] --out DIR`` runs one.
+
+Example:
+    >>> sorted(EXPERIMENTS)[:2]
+    ['fig2', 'fig3']
+"""
+from __future__ import annotations
+
+import importlib
+
+from ..errors import InputError
+
+#: name -> module (imported on demand)
+EXPERIMENTS = {
+    "fig2": "bayes_brdf.experiments.fig2_particles",
+    "fig3": "bayes_brdf.experiments.fig3_observations",
+    "fig4": "bayes_brdf.experiments.fig4_image_space",
+    "fig5": "bayes_brdf.experiments.fig5_prior",
+    "fig7": "bayes_brdf.experiments.fig7_guided",
+}
+
+
+def get(name: str):
+    """The experiment module ``name`` (one-line error for an unknown name)."""
+    if name not in EXPERIMENTS:
+        raise InputError(f"unknown experiment '{name}'", fix=f"use one of {', '.join(sorted(EXPERIMENTS))}")
+    return importlib.import_module(EXPERIMENTS[name])
+
+
+def preset(module, name: str, overrides: dict | None = None) -> dict:
+    """The preset table ``name`` of ``module`` with ``overrides`` applied (unknown keys are an error)."""
+    if name not in module.PRESETS:
+        raise InputError(f"unknown preset '{name}'", fix=f"use one of {', '.join(module.PRESETS)}")
+    cfg = dict(module.PRESETS[name])
+    for k, v in (overrides or {}).items():
+        if k not in cfg:
+            raise InputError(f"unknown setting '{k}' for this experiment", fix=f"settings: {', '.join(sorted(cfg))}")
+        cfg[k] = type(cfg[k])(v) if isinstance(cfg[k], (int, float)) and not isinstance(cfg[k], bool) else v
+    return cfg

@@ -152,7 +152,7 @@ def _capture(capture, views, surface) -> Observations:
 
 
 def guided_acquisition(model, initial: Observations, candidates, capture: Callable, *, rounds: int = 3,
-                       k: int = 5, method: str = "mi", radius: float = 0.0, sampler="spos_maps",
+                       k=5, method: str = "mi", radius: float = 0.0, sampler="spos_maps",
                        particles: int | None = None, steps: int | None = None, params: dict | None = None,
                        seed: int = 0, warm_start: bool = True, initial_indices=(),
                        evaluation: Callable | None = None, out=None, progress: bool = False,
@@ -165,6 +165,7 @@ def guided_acquisition(model, initial: Observations, candidates, capture: Callab
         candidates: the candidate views ``Theta-bar``.
         capture: ``capture(views) -> Observations`` (or images); see :class:`SyntheticCapture`, :class:`PoolCapture`.
         rounds: acquisition rounds; ``rounds + 1`` posteriors are drawn (the last one after the last capture).
+        k: views per round, or a list with one count per round (e.g. ``[5, 10, 10]``, the paper's Fig. 7).
         method: ``"mi"`` (ours), ``"std"``, ``"sobol"`` (low-discrepancy baseline) or ``"random"``.
         warm_start: start each round's sampler from the previous round's particles.
         initial_indices: candidate indices already in ``initial`` (never recommended again).
@@ -174,8 +175,10 @@ def guided_acquisition(model, initial: Observations, candidates, capture: Callab
     """
     from ..inference import infer
     candidates = list(candidates)
-    if rounds < 0 or k < 1:
-        raise InputError(f"need rounds >= 0 and k >= 1, got rounds={rounds}, k={k}")
+    ks = [int(k)] * rounds if isinstance(k, int) else [int(x) for x in k]
+    if rounds < 0 or len(ks) != rounds or any(x < 1 for x in ks):
+        raise InputError(f"need rounds >= 0 and k >= 1 per round, got rounds={rounds}, k={k}",
+                         fix="give k as one count, or a list with one count per round")
     out = Path(out) if out is not None else None
     obs, used, z, res = initial, [int(i) for i in initial_indices], None, AcquisitionResult()
     surface = initial.surface
@@ -196,7 +199,7 @@ def guided_acquisition(model, initial: Observations, candidates, capture: Callab
             rec = {"round": r, "views": len(obs), "method": method, "seed": seed, "fit_seconds": t_fit,
                    "metrics": metrics, "used": list(used), "picks": None}
             if r < rounds:
-                pick = recommend(post, candidates, k, method=method, radius=radius, exclude=used, surface=surface,
+                pick = recommend(post, candidates, ks[r], method=method, radius=radius, exclude=used, surface=surface,
                                  seed=seed + r, offset=len(obs), **(score_kw or {}))
                 rec["picks"] = pick.to_dict()
                 rec["recommend_seconds"] = time.perf_counter() - t1

@@ -28,7 +28,7 @@ from torch import Tensor
 from ..errors import InputError
 from .scores import CandidateScores, score_views
 
-METHODS = ("mi", "std", "sobol", "random")
+METHODS = ("mi", "std", "sobol", "fibonacci", "random")
 
 
 def configuration(views, target=(0.0, 0.0, 0.0)) -> Tensor:
@@ -89,24 +89,31 @@ def top_k(values: Tensor, candidates, k: int, radius: float = 0.0, exclude=()) -
         out.append(i)
         alive[i] = False
         if conf is not None:
-            alive &= (torch.linalg.vector_norm(conf - conf[i], dim=1) / math.sqrt(2)) >= chord
+            alive &= (torch.linalg.vector_norm(conf - conf[i], dim=1) / math.sqrt(2)) >= chord / 2
     return out
 
 
-def low_discrepancy(candidates, k: int, *, offset: int = 0, seed: int = 0, exclude=()) -> list[int]:
+def low_discrepancy(candidates, k: int, *, offset: int = 0, seed: int = 0, exclude=(),
+                    sequence: str = "sobol") -> list[int]:
     """The baseline: the next ``k`` points of a scrambled Sobol sequence of camera directions (uniform in
     solid angle over the candidates' zenith range), each mapped to the nearest free candidate camera;
     among candidates sharing that camera (a light stage), the light is picked at random.
 
     ``offset`` is how many baseline views were taken before, so successive calls continue one sequence.
+    ``sequence="fibonacci"`` uses a Fibonacci spiral of ``k`` points instead (evenly spread for that ``k``,
+    but not nested: ``offset`` is ignored).
     """
     conf = configuration(candidates)
     cam = conf[:, :3]
     cmin = float(cam[:, 2].min().clamp(-1, 1))
-    eng = torch.quasirandom.SobolEngine(2, scramble=True, seed=seed)
-    if offset:
-        eng.fast_forward(offset)
-    pts = eng.draw(k, dtype=torch.float64)
+    if sequence == "fibonacci":
+        i = torch.arange(k, dtype=torch.float64)
+        pts = torch.stack([(i + 0.5) / k, (i * (math.sqrt(5) - 1) / 2) % 1.0], -1)
+    else:
+        eng = torch.quasirandom.SobolEngine(2, scramble=True, seed=seed)
+        if offset:
+            eng.fast_forward(offset)
+        pts = eng.draw(k, dtype=torch.float64)
     cos_t = 1 - pts[:, 0] * (1 - cmin)
     sin_t = (1 - cos_t ** 2).clamp_min(0).sqrt()
     phi = 2 * math.pi * pts[:, 1]
@@ -135,7 +142,7 @@ def recommend(post, candidates, k: int = 1, *, method: str = "mi", radius: float
     Args:
         post: a :class:`~bayes_brdf.posterior.Posterior` (or particle maps); unused by ``"sobol"``/``"random"``.
         method: ``"mi"`` (mutual information, Eq. 18), ``"std"`` (max mean image-space std, a baseline),
-            ``"sobol"`` (low-discrepancy directions, the paper's baseline) or ``"random"``.
+            ``"sobol"`` (low-discrepancy directions, the paper's baseline), ``"fibonacci"`` or ``"random"``.
         radius: exclusion radius in degrees (configuration space) between picks of one batch; ``k = 1``
             is Algorithm 1's greedy step.
         exclude: candidate indices that may not be picked (already captured).
@@ -149,8 +156,8 @@ def recommend(post, candidates, k: int = 1, *, method: str = "mi", radius: float
         raise InputError(f"k must be >= 1, got {k}")
     if radius < 0:
         raise InputError(f"radius must be >= 0 degrees, got {radius}")
-    if method == "sobol":
-        idx = low_discrepancy(candidates, k, offset=offset, seed=seed, exclude=exclude)
+    if method in ("sobol", "fibonacci"):
+        idx = low_discrepancy(candidates, k, offset=offset, seed=seed, exclude=exclude, sequence=method)
     elif method == "random":
         free = [i for i in range(len(candidates)) if i not in set(int(j) for j in exclude)]
         g = torch.Generator().manual_seed(seed * 7919 + offset)

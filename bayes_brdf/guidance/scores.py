@@ -55,8 +55,18 @@ def counted_pixels(g, map_resolution, footprint: bool = True) -> Tensor:
     return g.mask
 
 
+def observation_noise_var(post) -> float:
+    """Variance of the model's observation noise ``W`` (Eq. 12): ``2 sigma^2`` for Laplace, ``sigma^2`` for Gaussian."""
+    model = getattr(post, "model", None)
+    sigma = getattr(model, "sigma", None)
+    if sigma is None:
+        raise InputError("noise_var='observation' needs the posterior's model (its sigma)",
+                         fix="pass noise_var as a number (image units squared)")
+    return (2.0 if getattr(model, "likelihood", "laplace") == "laplace" else 1.0) * float(sigma) ** 2
+
+
 def score_views(post, candidates, surface=None, *, estimator: str = "mc", nodes: int = 8,
-                noise_var: float = 0.0, seed: int = 0, footprint: bool = True, min_bandwidth: float = 1e-6,
+                noise_var: float | str = 0.0, seed: int = 0, footprint: bool = True, min_bandwidth: float = 1e-6,
                 chunk_views: int | None = None, backend: str = "auto") -> CandidateScores:
     """Score ``candidates`` (a list of :class:`View`) by mutual information with the posterior's particles.
 
@@ -64,11 +74,18 @@ def score_views(post, candidates, surface=None, *, estimator: str = "mc", nodes:
         post: a :class:`~bayes_brdf.posterior.Posterior` with its model, or particle maps (``SVBRDF [n, ...]``).
         estimator: ``"mc"`` (the paper's Eq. 21, common random numbers across candidates, seeded by
             ``seed``) or ``"quadrature"`` (deterministic, ``nodes`` Gauss-Hermite nodes per kernel).
-        noise_var: per-pixel render-noise variance; ``h_noise`` is its Gaussian entropy (0 when 0).
+        noise_var: per-pixel noise variance; ``h_noise`` is its Gaussian entropy (0 when 0, the paper's
+            deterministic renderer). ``"observation"`` uses the model's observation noise (Eq. 12's ``W``,
+            as a Gaussian of equal variance): the score is then the information a *noisy* photo carries,
+            and pixels whose spread is far below the noise count about 0 instead of very negative.
         footprint: count one pixel per texel (Sec. 3.4.1); off, every valid pixel counts.
         chunk_views: candidates rendered at once (memory bound); default about 16 M values per chunk.
     """
     t0 = time.perf_counter()
+    if noise_var == "observation":
+        noise_var = observation_noise_var(post)
+    elif isinstance(noise_var, str):
+        raise InputError(f"unknown noise_var '{noise_var}'", fix="give a number or 'observation'")
     maps = _particle_maps(post)
     surface = _surface(post, surface)
     candidates = list(candidates)

@@ -1,0 +1,153 @@
+"""``bayes-brdf recommend CAPTURE``: rank candidate views by mutual information with the posterior (Eq. 18)."""
+from __future__ import annotations
+
+import json
+import math
+import time
+from pathlib import Path
+
+from .common import positive_int
+from .infer import add_sampling_args, sample
+
+
+def add_parser(sub):
+    r = sub.add_parser("recommend", help="rank candidate views by how much they would reduce the uncertainty",
+                       description="Fit the posterior on --views of a capture (or load one with --posterior), then "
+                                   "score candidate views by mutual information (Eq. 18) and print the best --k, "
+                                   "with hypersphere exclusion of --radius degrees between picks. Candidates: the "
+                                   "capture's views that were not fitted ('heldout', e.g. to replay a session), or "
+                                   "generated flash views (fibonacci:N, sobol:N) at the capture's camera distance, "
+                                   "or a JSON file of views. Writes recommend.json and a plot of the candidates.")
+    add_sampling_args(r, "out/recommend")
+    r.add_argument("--posterior", default=None,
+                   help="a posterior.safetensors written by fit/infer (skips fitting; its model must be a preset)")
+    r.add_argument("--candidates", default="heldout",
+                   help="heldout, fibonacci:N, sobol:N or a JSON file of views (default: %(default)s)")
+    r.add_argument("--k", type=positive_int, default=3, help="views to recommend (default: %(default)s)")
+    r.add_argument("--radius", type=float, default=10.0,
+                   help="exclusion radius between picks, degrees (default: %(default)s)")
+    r.add_argument("--method", default="mi", choices=["mi", "std", "sobol", "fibonacci", "random"],
+                   help="mi (ours), std (max image-space std), sobol, fibonacci or random baselines "
+                        "(default: %(default)s)")
+    r.add_argument("--estimator", default="mc", choices=["mc", "quadrature"],
+                   help="entropy estimator: mc (Eq. 21) or quadrature (deterministic, slower) (default: %(default)s)")
+    r.add_argument("--noise-var", default="observation",
+                   help="noise variance in the score: 'observation' (the model's photo noise, default), or a number; "
+                        "0 is the paper's noise-free renderer")
+    r.set_defaults(func=run)
+
+
+def _candidates(spec: str, full, fitted):
+    from ..errors import InputError
+    from ..render.views import View, collocated_views
+
+    if spec == "heldout":
+        idx = [i for i in range(len(full)) if i not in fitted]
+        if not idx:
+            raise InputError("no held-out views to rank: every view is fitted",
+                             fix="fit fewer --views, or use --candidates fibonacci:N")
+        return [full.views[i] for i in idx], idx
+    p = Path(spec)
+    if p.suffix.lower() == ".json":
+        if not p.is_file():
+            raise InputError("candidate views file not found", where=p)
+        try:
+            data = json.loads(p.read_text())
+        except (OSError, json.JSONDecodeError) as e:
+            raise InputError(f"unreadable views JSON ({e})", where=p) from None
+        data = data.get("views", data) if isinstance(data, dict) else data
+        views = [View.from_dict(d.get("view", d), where=f"{p}[{i}]") for i, d in enumerate(data)]
+        return views, list(range(len(views)))
+    kind, _, num = spec.partition(":")
+    if kind not in ("fibonacci", "sobol") or not num.isdigit() or int(num) < 1:
+        raise InputError(f"bad --candidates '{spec}'", fix="use heldout, fibonacci:N, sobol:N or a JSON file of views")
+    v0 = full.views[0]
+    dist = sorted(math.dist(v.camera.position, (0, 0, 0)) for v in full.views)[len(full.views) // 2]
+    light = v0.lights[0]
+    views = collocated_views(int(num), dist, method=kind, camera="rectified", resolution=v0.resolution,
+                             power=light.power, falloff=light.falloff, max_zenith=60)
+    return views, list(range(len(views)))
+
+
+def _plot(path, cands, scores, picks, title):
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    from ..uncertainty import CMAP
+    d = np.array([v.camera.position for v in cands], dtype=float)
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    fig, ax = plt.subplots(figsize=(4.2, 3.8))
+    sc = ax.scatter(d[:, 0], d[:, 1], c=scores, cmap=CMAP, s=18)
+    ax.scatter(d[picks, 0], d[picks, 1], s=120, facecolors="none", edgecolors="tab:cyan", linewidths=2,
+               label="recommended")
+    for rank, i in enumerate(picks):
+        ax.annotate(str(rank + 1), d[i, :2], xytext=(4, 4), textcoords="offset points", color="tab:cyan", fontsize=9)
+    ax.add_patch(plt.Circle((0, 0), 1, fill=False, color="gray", lw=0.5))
+    ax.set_aspect("equal")
+    ax.set_xlabel("camera direction x")
+    ax.set_ylabel("camera direction y")
+    ax.set_title(title, fontsize=9)
+    fig.colorbar(sc, ax=ax, fraction=0.046, pad=0.04, label="mutual information (nats)")
+    ax.legend(fontsize=7, loc="lower right")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def run(a) -> int:
+    from ..errors import InputError
+    from ..guidance import recommend, score_views
+    from ..io import load_capture
+    from ..posterior import Posterior
+
+    t0 = time.perf_counter()
+    full = load_capture(a.capture, resolution=a.resolution)
+    fitted = list(range(len(full))) if a.views is None else list(a.views)
+    obs = full.subset(fitted)
+    out = Path(a.out)
+    out.mkdir(parents=True, exist_ok=True)
+    if a.posterior:
+        post = Posterior.load(a.posterior)
+        if post.model is None:
+            raise InputError("this posterior's model cannot be rebuilt from its file", where=a.posterior,
+                             fix="refit with --views instead of --posterior")
+        if post.surface is None:
+            post.meta["surface"] = {"size": full.surface.size, "grid": full.surface.grid}
+    else:
+        post = sample(a, obs, out)
+        post.save(out / "posterior.safetensors")
+    t_fit = time.perf_counter() - t0
+    cands, labels = _candidates(a.candidates, full, fitted)
+    scores = None
+    if a.method in ("mi", "std"):
+        nv = a.noise_var
+        if nv != "observation":
+            try:
+                nv = float(nv)
+            except ValueError:
+                raise InputError(f"bad --noise-var '{a.noise_var}'", fix="give 'observation' or a number >= 0") from None
+            if nv < 0:
+                raise InputError(f"--noise-var must be >= 0, got {nv}")
+        scores = score_views(post, cands, full.surface, estimator=a.estimator, seed=a.seed, noise_var=nv)
+    rec = recommend(post, cands, a.k, method=a.method, radius=a.radius, surface=full.surface, seed=a.seed,
+                    scores=scores, offset=len(fitted))
+    result = {"capture": str(a.capture), "fitted_views": fitted, "candidates": a.candidates, "method": a.method,
+              "k": a.k, "radius_deg": a.radius, "estimator": a.estimator, "noise_var": a.noise_var,
+              "fit_seconds": t_fit,
+              "recommended": [labels[i] for i in rec.indices], **rec.to_dict()}
+    if scores is not None:
+        result["all"] = [{"candidate": labels[i], "mi": float(scores.mi[i]), "mean_std": float(scores.mean_std[i]),
+                          "pixels": int(scores.pixels[i])} for i in range(len(cands))]
+        _plot(out / "candidates.png", cands, scores.mi.numpy() if a.method == "mi" else scores.mean_std.numpy(),
+              rec.indices, f"{len(cands)} candidates, {a.k} recommended ({a.method})")
+    (out / "recommend.json").write_text(json.dumps(result, indent=2, default=str))
+    what = "view" if a.candidates == "heldout" else "candidate"
+    print(f"recommended ({a.method}, from {len(cands)} candidates): "
+          + ", ".join(f"{what} {labels[i]}" + (f" (MI {float(scores.mi[i]):.0f} nats)" if scores is not None else "")
+                      for i in rec.indices) + f" -> {out}/recommend.json")
+    if scores is not None and a.candidates == "heldout":
+        order = sorted(range(len(cands)), key=lambda i: -float(scores.mi[i]))
+        print("ranking by mutual information: " + " > ".join(str(labels[i]) for i in order))
+    return 0

@@ -1,0 +1,114 @@
+"""Shared pieces of the experiments: synthetic problems, fitting, JSON and figures."""
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from ..inference import infer
+from ..models.material import per_texel
+from ..observations import Observations
+from ..render.shade import render
+from ..render.surface import PlanarSample
+from ..render.views import collocated_views
+from ..uncertainty import CMAP
+
+SURFACE = PlanarSample(2.0)
+
+
+def synthetic(material: str = "wood", resolution: int = 32, views: int = 10, *, seed: int = 0,
+              method: str = "sobol", radius: float = 3.0, power: float = 10.0, max_zenith: float = 60.0,
+              noise_sigma: float = 0.0, view_seed: int | None = None):
+    """``(truth maps, Observations)``: a procedural material under collocated rectified views at map resolution."""
+    from ..guidance.acquisition import SyntheticCapture
+    from ..materials import make_material
+
+    truth = make_material(material, resolution, seed=seed).to(torch.float32)
+    vs = collocated_views(views, radius, method=method, camera="rectified", resolution=resolution, power=power,
+                          max_zenith=max_zenith, seed=seed if view_seed is None else view_seed)
+    obs = SyntheticCapture(truth, SURFACE, noise_sigma=noise_sigma, seed=seed)(vs)
+    return truth, obs
+
+
+def fit(obs: Observations, resolution: int, *, steps: int, particles: int = 20, seed: int = 0,
+        sampler: str = "spos_maps", model=None, params=None, progress: bool = False):
+    """Sample the per-texel posterior (RGB albedo, roughness) of ``obs``."""
+    model = model if model is not None else per_texel(resolution)
+    return infer(model, obs, sampler, seed=seed, particles=particles, steps=steps, params=params, progress=progress)
+
+
+def write_json(out, name: str, data: dict) -> Path:
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    p = out / f"{name}.json"
+    p.write_text(json.dumps(data, indent=2, default=float))
+    return p
+
+
+def figure_grid(path, panels, *, ncols: int | None = None, title: str = "", share: bool = True, vmax=None):
+    """A row/grid of value maps ``[(label, [H, W] array)]`` with the one colormap and a colour bar each
+    (``share``: one common range). Writes ``path`` (PNG)."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    arrs = [(lab, np.asarray(torch.as_tensor(a).detach().float().cpu())) for lab, a in panels]
+    ncols = ncols or len(arrs)
+    nrows = math.ceil(len(arrs) / ncols)
+    if share and vmax is None:
+        vmax = max(float(np.percentile(a[np.isfinite(a)], 99)) for _, a in arrs)
+    fig, axes = plt.subplots(nrows, ncols, figsize=(2.6 * ncols, 2.4 * nrows + (0.3 if title else 0)),
+                             squeeze=False)
+    for ax in axes.flat:
+        ax.set_axis_off()
+    for ax, (lab, a) in zip(axes.flat, arrs):
+        vm = vmax if share else float(np.percentile(a[np.isfinite(a)], 99))
+        im = ax.imshow(a, cmap=CMAP, vmin=0, vmax=vm if vm > 0 else 1e-12, interpolation="nearest")
+        ax.set_title(lab, fontsize=8)
+        cb = fig.colorbar(im, ax=ax, fraction=0.046, pad=0.03)
+        cb.ax.tick_params(labelsize=6)
+    if title:
+        fig.suptitle(title, fontsize=9)
+    fig.tight_layout()
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return Path(path)
+
+
+def line_plot(path, series: dict, *, xlabel: str, ylabel: str, title: str = "", logx: bool = False,
+              errors: dict | None = None):
+    """``series = {label: (xs, ys)}`` on one plot (optional ``errors = {label: yerr}``). Writes ``path``."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(4.2, 3.2))
+    for lab, (xs, ys) in series.items():
+        if errors and lab in errors:
+            ax.errorbar(xs, ys, yerr=errors[lab], marker="o", ms=3, capsize=2, label=lab)
+        else:
+            ax.plot(xs, ys, marker="o", ms=3, label=lab)
+    if logx:
+        ax.set_xscale("log", base=2)
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    if title:
+        ax.set_title(title, fontsize=9)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return Path(path)
+
+
+def views_at(obs: Observations):
+    return list(obs.views)
+
+
+__all__ = ["SURFACE", "synthetic", "fit", "write_json", "figure_grid", "line_plot", "render"]

@@ -1,0 +1,90 @@
+"""`bayes-brdf fit` / `recommend` / `demo`: files and numbers a user reads, and one-line errors."""
+import json
+import math
+
+import pytest
+
+from bayes_brdf.cli.main import main
+from bayes_brdf.posterior import Posterior
+
+
+@pytest.fixture(scope="module")
+def bundle(tmp_path_factory):
+    out = tmp_path_factory.mktemp("bundle")
+    assert main(["render", "wood", "--views", "sobol:6", "--camera", "rectified", "--resolution", "12",
+                 "--power", "10", "--out", str(out)]) == 0
+    return out
+
+
+def test_fit_holds_out_views_and_reports_calibration(bundle, tmp_path, capsys):
+    out = tmp_path / "fit"
+    assert main(["fit", str(bundle), "--views", "0,2,4", "--resolution", "12", "--steps", "200",
+                 "--out", str(out)]) == 0
+    s = json.loads((out / "summary.json").read_text())
+    assert s["fit_views"] == [0, 2, 4] and s["heldout_views"] == [1, 3, 5]
+    h = s["heldout"]
+    assert -1 <= h["pearson"] <= 1 and -1 <= h["spearman"] <= 1
+    assert 0 <= h["coverage"]["50"] <= h["coverage"]["90"] <= 1
+    assert h["pixels"] == 3 * 12 * 12 and len(h["views"]) == 3
+    assert set(s["seconds"]) >= {"load", "fit", "heldout", "total"}
+    for name in ("view_01_std.exr", "view_01_std.png", "view_03_error.exr", "view_05_map_render.png"):
+        assert (out / "heldout" / name).is_file(), name
+    for name in ("std/albedo.png", "std/roughness.exr", "map/albedo.png", "posterior.safetensors"):
+        assert any((out / name).parent.glob((out / name).name.split(".")[0] + "*")), name
+    line = capsys.readouterr().out
+    assert "Pearson" in line and "coverage" in line
+
+
+def test_fit_bad_split_is_one_line(bundle, tmp_path, capsys):
+    assert main(["fit", str(bundle), "--views", "0,1", "--holdout", "1,2", "--out", str(tmp_path / "x")]) == 2
+    assert main(["fit", str(bundle), "--views", "0,9", "--out", str(tmp_path / "y")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 2 and all(e.startswith("bayes-brdf: error:") for e in err)
+    assert "both fitted and held out" in err[0] and "out of range" in err[1]
+
+
+def test_recommend_ranks_heldout_views_then_reuses_the_posterior(bundle, tmp_path, capsys):
+    out = tmp_path / "rec"
+    assert main(["recommend", str(bundle), "--views", "0,1", "--resolution", "12", "--steps", "150", "--k", "2",
+                 "--radius", "0", "--out", str(out)]) == 0
+    r = json.loads((out / "recommend.json").read_text())
+    assert len(r["recommended"]) == 2 and set(r["recommended"]) <= {2, 3, 4, 5}
+    by_mi = sorted(r["all"], key=lambda c: -c["mi"])
+    assert [c["candidate"] for c in by_mi[:2]] == r["recommended"]   # radius 0: the top two by MI
+    assert all(math.isfinite(c["mi"]) for c in r["all"]) and (out / "candidates.png").is_file()
+    # reuse the posterior file (no fitting), generated candidates
+    post = out / "posterior.safetensors"
+    assert Posterior.load(post).model is not None
+    out2 = tmp_path / "rec2"
+    assert main(["recommend", str(bundle), "--views", "0,1", "--resolution", "12", "--posterior", str(post),
+                 "--candidates", "fibonacci:40", "--k", "3", "--radius", "15", "--out", str(out2)]) == 0
+    r2 = json.loads((out2 / "recommend.json").read_text())
+    assert len(r2["recommended"]) == 3 and r2["fit_seconds"] < 30
+    capsys.readouterr()
+    assert main(["recommend", str(bundle), "--posterior", str(post), "--candidates", "grid:9",
+                 "--out", str(tmp_path / "r3")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("bayes-brdf: error: bad --candidates") and err.count("\n") == 1
+
+
+def test_experiment_list_and_unknown(capsys):
+    assert main(["experiment", "list"]) == 0
+    listed = capsys.readouterr().out
+    assert all(name in listed for name in ("fig2", "fig3", "fig4", "fig5", "fig7"))
+    assert main(["experiment", "fig99"]) == 2
+    assert main(["experiment", "fig7", "--set", "nope=1"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 2 and "unknown experiment" in err[0] and "unknown setting" in err[1]
+
+
+def test_demo_writes_a_self_contained_report(tmp_path, capsys):
+    out = tmp_path / "demo"
+    assert main(["demo", "--resolution", "8", "--steps", "60", "--rounds", "1", "--k", "2", "--out", str(out)]) == 0
+    html = (out / "report.html").read_text()
+    assert html.count("data:image/png;base64,") >= 10 and "<img src=\"http" not in html   # images embedded
+    assert "Image-space uncertainty" in html and "Guided capture" in html
+    printed = capsys.readouterr().out
+    assert str((out / "report.html").resolve()) in printed
+    d = json.loads((out / "demo.json").read_text())
+    assert [r["views"] for r in d["rounds"]["guided (MI)"]] == [5, 7]
+    assert main(["demo", "--material", "cheese", "--out", str(out)]) == 2
