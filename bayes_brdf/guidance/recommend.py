@@ -89,7 +89,7 @@ def top_k(values: Tensor, candidates, k: int, radius: float = 0.0, exclude=()) -
         out.append(i)
         alive[i] = False
         if conf is not None:
-            alive &= (torch.linalg.vector_norm(conf - conf[i], dim=1) / math.sqrt(2)) >= chord / 2
+            alive &= (torch.linalg.vector_norm(conf - conf[i], dim=1) / math.sqrt(2)) >= chord
     return out
 
 
@@ -164,6 +164,6 @@ def recommend(post, candidates, k: int = 1, *, method: str = "mi", radius: float
         idx = [free[int(j)] for j in torch.randperm(len(free), generator=g)[:k]]
     else:
         if scores is None:
-            scores = score_views(post, candidates, surface, seed=seed, **score_kw)
+            scores = score_views(post, candidates, surface, **{"seed": seed, **score_kw})
         idx = top_k(scores.mi if method == "mi" else scores.mean_std, candidates, k, radius, exclude)
     return Recommendation(idx, method, scores, [candidates[i] for i in idx])
