@@ -118,7 +118,7 @@ def run(out, preset: str = "small", seed: int = 0, progress: bool = False, **ove
                       {METHODS[m]: (curves[m]["views"], curves[m][key]) for m in METHODS},
                       errors={METHODS[m]: curves[m][key + "_sem"] for m in METHODS},
                       xlabel="number of views", ylabel=label,
-                      title=f"Fig. 7, {kind.replace('_', ' ')}: mean of {cfg['seeds']} seeds")
+                      title=f"Fig. 7, {kind.replace('_', ' ')}: mean of {cfg['seeds']} seeds (bars: s.e.)")
         # after the first recommendation (equal view counts, both methods)
         g, b = curves["mi"], curves["sobol"]
         later = range(1, len(g["views"]))
