@@ -175,6 +175,19 @@ def _scalar(img) -> Tensor:
     return t.mean(-1) if t.dim() == 3 else t
 
 
+def show_map(fig, ax, value, vmin: float, vmax: float, title: str = "", unit: str = "", fontsize: int = 9):
+    """Draw a value map on ``ax`` with the one colormap and a colour bar (shared by every figure)."""
+    im = ax.imshow(value, cmap=CMAP, vmin=vmin, vmax=vmax if vmax > vmin else vmin + 1e-12, interpolation="nearest")
+    ax.set_axis_off()
+    if title:
+        ax.set_title(title, fontsize=fontsize)
+    cb = fig.colorbar(im, ax=ax, fraction=0.046, pad=0.04)
+    cb.ax.tick_params(labelsize=fontsize - 2)
+    if unit:
+        cb.set_label(unit, fontsize=fontsize - 1)
+    return im
+
+
 def write_map(path, value, *, title: str = "", vmin: float = 0.0, vmax: float | None = None,
               unit: str = "", exr: bool = True) -> Path:
     """Write ``value`` (``[H, W]``, ``[H, W, C]`` or channel-first ``[C, H, W]``) as ``path.exr`` and a
@@ -197,16 +210,8 @@ def write_map(path, value, *, title: str = "", vmin: float = 0.0, vmax: float | 
         fin = s[np.isfinite(s)]
         vmax = float(np.percentile(fin, 99)) if fin.size else 1.0
     vmax = vmax if vmax > vmin else vmin + 1e-12
-    h, w = s.shape
     fig, ax = plt.subplots(figsize=(3.6, 3.0), dpi=100)
-    im = ax.imshow(s, cmap=CMAP, vmin=vmin, vmax=vmax, interpolation="nearest")
-    ax.set_axis_off()
-    if title:
-        ax.set_title(title, fontsize=9)
-    cb = fig.colorbar(im, ax=ax, fraction=0.046, pad=0.04)
-    cb.ax.tick_params(labelsize=7)
-    if unit:
-        cb.set_label(unit, fontsize=8)
+    show_map(fig, ax, s, vmin, vmax, title, unit)
     fig.tight_layout()
     png = path.with_suffix(".png")
     fig.savefig(png)

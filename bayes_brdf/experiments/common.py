@@ -14,7 +14,7 @@ from ..observations import Observations
 from ..render.shade import render
 from ..render.surface import PlanarSample
 from ..render.views import collocated_views
-from ..uncertainty import CMAP
+from ..uncertainty import show_map
 
 SURFACE = PlanarSample(2.0)
 
@@ -66,10 +66,7 @@ def figure_grid(path, panels, *, ncols: int | None = None, title: str = "", shar
         ax.set_axis_off()
     for ax, (lab, a) in zip(axes.flat, arrs):
         vm = vmax if share else float(np.percentile(a[np.isfinite(a)], 99))
-        im = ax.imshow(a, cmap=CMAP, vmin=0, vmax=vm if vm > 0 else 1e-12, interpolation="nearest")
-        ax.set_title(lab, fontsize=8)
-        cb = fig.colorbar(im, ax=ax, fraction=0.046, pad=0.03)
-        cb.ax.tick_params(labelsize=6)
+        show_map(fig, ax, a, 0.0, vm, lab, fontsize=8)
     if title:
         fig.suptitle(title, fontsize=9)
     fig.tight_layout()
