@@ -1,7 +1,9 @@
 """``bb.infer``: a model, observations and a sampler in, a :class:`Posterior` out."""
 from __future__ import annotations
 
+import os
 import sys
+from typing import Callable
 
 import torch
 
@@ -27,9 +29,10 @@ def resolve_model(model):
     return model
 
 
-def infer(model, observations, sampler="spos", *, seed: int = 0, particles: int | None = None,
-          steps: int | None = None, params: dict | None = None, checkpoint=None, progress: bool | None = None,
-          dtype=torch.float32, device=None, callbacks=(), z0=None) -> Posterior:
+def infer(model: "Callable | str | dict", observations: "Observations | ModelData", sampler: "str | dict | object" = "spos",
+          *, seed: int = 0, particles: int | None = None, steps: int | None = None, params: dict | None = None,
+          checkpoint: "str | os.PathLike | None" = None, progress: bool | None = None, dtype=torch.float32,
+          device: "str | torch.device | None" = None, callbacks=(), z0: "torch.Tensor | None" = None) -> Posterior:
     """Sample the posterior of ``model`` given ``observations`` with ``sampler``.
 
     Args:
@@ -38,7 +41,9 @@ def infer(model, observations, sampler="spos", *, seed: int = 0, particles: int 
         observations: :class:`Observations` (or a :class:`ModelData`).
         sampler: a name, a preset path (``samplers/*.toml``), a table or a :class:`Sampler`.
         seed: same seed, same result.
-        particles, steps, params: override the preset's run size and hyper-parameters.
+        particles: override the preset's particle count.
+        steps: override the preset's step count.
+        params: override the preset's hyper-parameters.
         checkpoint: a file to checkpoint to and resume from.
         progress: show a progress bar (default: when stderr is a terminal).
         device: where to run; by default the observations' device.

@@ -24,6 +24,7 @@ import copy
 import math
 from dataclasses import dataclass
 from math import prod
+from typing import Callable
 
 import pyro
 import pyro.poutine as poutine
@@ -122,7 +123,8 @@ class Potential:
 
     Args:
         model: a Pyro model function.
-        args, kwargs: passed to ``model`` on every run.
+        args: positional arguments passed to ``model`` on every run.
+        kwargs: keyword arguments passed to ``model`` on every run.
 
     Example:
         >>> import pyro, pyro.distributions as dist, torch
@@ -136,7 +138,7 @@ class Potential:
         ([1.8379, 4.3379], [1.0, 2.0])
     """
 
-    def __init__(self, model, args: tuple = (), kwargs: dict | None = None):
+    def __init__(self, model: Callable, args: tuple = (), kwargs: dict | None = None):
         self.model = model
         self.args, self.kwargs = tuple(args), dict(kwargs or {})
         self._count = [0]         # particle evaluations so far (shared with minibatch views of this potential)

@@ -50,7 +50,7 @@ def write_json(out, name: str, data: dict) -> Path:
 
 def figure_grid(path, panels, *, ncols: int | None = None, title: str = "", share: bool = True, vmax=None):
     """A row/grid of value maps ``[(label, [H, W] array)]`` with the one colormap and a colour bar each
-    (``share``: one common range). Writes ``path`` (PNG)."""
+    (``share``: one common range; ``vmax`` a list: one upper end per panel). Writes ``path`` (PNG)."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -64,8 +64,9 @@ def figure_grid(path, panels, *, ncols: int | None = None, title: str = "", shar
                              squeeze=False)
     for ax in axes.flat:
         ax.set_axis_off()
-    for ax, (lab, a) in zip(axes.flat, arrs):
-        vm = vmax if share else float(np.percentile(a[np.isfinite(a)], 99))
+    for i, (ax, (lab, a)) in enumerate(zip(axes.flat, arrs)):
+        vm = (vmax[i] if isinstance(vmax, (list, tuple)) else vmax if share
+              else float(np.percentile(a[np.isfinite(a)], 99)))
         show_map(fig, ax, a, 0.0, vm, lab, fontsize=8)
     if title:
         fig.suptitle(title, fontsize=9)

@@ -151,11 +151,11 @@ def _capture(capture, views, surface) -> Observations:
     return Observations(list(views), img.float(), surface)
 
 
-def guided_acquisition(model, initial: Observations, candidates, capture: Callable, *, rounds: int = 3,
-                       k=5, method: str = "mi", radius: float = 0.0, sampler="spos_maps",
+def guided_acquisition(model: "Callable | str", initial: Observations, candidates: list, capture: Callable, *,
+                       rounds: int = 3, k: "int | list[int]" = 5, method: str = "mi", radius: float = 0.0, sampler="spos_maps",
                        particles: int | None = None, steps: int | None = None, params: dict | None = None,
-                       seed: int = 0, warm_start: bool = True, initial_indices=(),
-                       evaluation: Callable | None = None, out=None, progress: bool = False,
+                       seed: int = 0, warm_start: bool = True, initial_indices: "list[int] | tuple" = (),
+                       evaluation: Callable | None = None, out: "str | Path | None" = None, progress: bool = False,
                        score_kw: dict | None = None, on_round: Callable | None = None) -> AcquisitionResult:
     """Algorithm 1 with ``k`` views per round (hypersphere exclusion of ``radius`` degrees between them).
 

@@ -114,8 +114,8 @@ def kde_entropy(x: Tensor, estimator: str = "mc", *, u: Tensor | None = None, e:
     Args:
         x: ``n`` samples (particle renders) of ``cols`` pixel values.
         estimator: ``"mc"`` (Eq. 21) or ``"quadrature"`` (deterministic, ``nodes`` Gauss-Hermite nodes).
-        u, e: for ``"mc"``: a uniform ``[cols]`` (picks the kernel) and a standard normal ``[cols]``
-            (the offset in it); drawn from ``generator`` when not given.
+        u: for ``"mc"``: a uniform ``[cols]`` that picks the kernel; drawn from ``generator`` when not given.
+        e: for ``"mc"``: a standard normal ``[cols]``, the offset within the kernel; drawn when not given.
         noise_var: render-noise variance (image units squared) added to every kernel: the KDE is then
             of ``R + noise``, which also bounds the entropy from below.
         min_bandwidth: floor on the kernel width, so pixels on which all particles agree give a finite

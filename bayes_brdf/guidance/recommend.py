@@ -134,9 +134,10 @@ def low_discrepancy(candidates, k: int, *, offset: int = 0, seed: int = 0, exclu
     return out
 
 
-def recommend(post, candidates, k: int = 1, *, method: str = "mi", radius: float = 0.0, exclude=(),
+def recommend(post: "Posterior | SVBRDF", candidates: list, k: int = 1, *, method: str = "mi", radius: float = 0.0,
+              exclude: "list[int] | tuple" = (),
               surface=None, seed: int = 0, offset: int = 0, scores: CandidateScores | None = None,
-              **score_kw) -> Recommendation:
+              **score_kw: object) -> Recommendation:
     """Recommend ``k`` of ``candidates`` to capture next.
 
     Args:

@@ -65,7 +65,7 @@ def observation_noise_var(post) -> float:
     return (2.0 if getattr(model, "likelihood", "laplace") == "laplace" else 1.0) * float(sigma) ** 2
 
 
-def score_views(post, candidates, surface=None, *, estimator: str = "mc", nodes: int = 8,
+def score_views(post: "Posterior | SVBRDF", candidates: list, surface=None, *, estimator: str = "mc", nodes: int = 8,
                 noise_var: float | str = 0.0, seed: int = 0, footprint: bool = True, min_bandwidth: float = 1e-6,
                 chunk_views: int | None = None, backend: str = "auto") -> CandidateScores:
     """Score ``candidates`` (a list of :class:`View`) by mutual information with the posterior's particles.
