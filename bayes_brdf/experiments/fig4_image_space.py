@@ -1,0 +1,261 @@
+"""Fig. 4: image-space uncertainty (Eq. 11) against the novel-view errors of four point estimates.
+
+Setup (the paper's Sec. 4, "Image-space uncertainty"): a procedural SVBRDF (``material``, wood by default) at
+``resolution^2`` texels is observed under ``views`` collocated flash views (rectified cameras, zenith within
+60 degrees, Sobol directions seeded by ``seed``); normals and specular albedo are known (the truth's), albedo (RGB)
+and roughness are inferred per texel with ``spos_maps`` (``particles`` particles, ``steps`` steps, started from prior
+draws kept off the parameter bounds). Four point estimates of the same posterior:
+
+* (b1) Adam on the MAP objective ``-log f(x)`` (the potential's energy without the Jacobian, Eq. 3/7) from high
+  initial roughness (``init_high``, albedo 0.5 everywhere);
+* (b2) the same from low initial roughness (``init_low``);
+* (b3) plain (no momentum) SGD from random initial albedo and roughness (uniform within the central 90% of
+  each range), step size decaying linearly to 10%;
+* (b4) ours (Sec. 3.3.1): the particle of highest ``f``, refined by ``refine_steps`` of Adam.
+
+(b1)-(b3) run as three rows of one batched potential (:func:`optimize`, ``opt_steps`` steps; Adam step
+``adam_lr``, SGD step ``sgd_lr``, both decaying linearly to 10%). Two novel views, not among the observed ones:
+``grazing`` (camera and flash together at 75 degrees zenith, beyond every observed view) and ``opposite``
+(camera and light at 60 degrees zenith on opposite sides: the mirror configuration, highlight in the middle,
+that a collocated capture never sees). For each we render the truth and every estimate, take the per-pixel
+absolute error (mean over RGB) and the image-space std of the particles' renders (Eq. 11, mean over RGB), and
+report Pearson and Spearman correlations between std and error over the pixels on the sample, per view and
+averaged over the two views.
+"""
+from __future__ import annotations
+
+import math
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from . import preset as _preset
+from .common import SURFACE, figure_grid, synthetic, write_json
+from ..inference import infer
+from ..models.data import ModelData
+from ..models.material import per_texel
+from ..potential import Potential
+from ..render.cameras import RectifiedCamera
+from ..render.gbuffer import GBuffer
+from ..render.lights import PointLight
+from ..render.shade import render
+from ..render.views import View
+from ..uncertainty import CMAP, correlations, image_std
+
+DESCRIPTION = "Fig. 4: image-space std (Eq. 11) vs novel-view errors of four point estimates (Adam x2, SGD, ours)"
+
+PRESETS = {
+    "small": {"material": "wood", "resolution": 32, "views": 20, "particles": 20, "steps": 1500,
+              "opt_steps": 600, "adam_lr": 0.05, "sgd_lr": 2e-4, "refine_steps": 100, "init_high": 0.9,
+              "init_low": 0.1, "noise_sigma": 0.0},
+    "full": {"material": "wood", "resolution": 128, "views": 20, "particles": 20, "steps": 4000,
+             "opt_steps": 2000, "adam_lr": 0.05, "sgd_lr": 2e-4, "refine_steps": 200, "init_high": 0.9,
+             "init_low": 0.1, "noise_sigma": 0.0},
+}
+
+ESTIMATES = ("b1_adam_high", "b2_adam_low", "b3_sgd_random", "b4_ours")
+LABELS = {"b1_adam_high": "(b1) Adam, high init", "b2_adam_low": "(b2) Adam, low init",
+          "b3_sgd_random": "(b3) SGD, random init", "b4_ours": "(b4) ours (MAP)"}
+#: the prior draws that start SPOS and (b3) are kept this fraction of each range away from its bounds
+INIT_MARGIN = 0.05
+
+
+# ------------------------------------------------------------------ point estimates
+def optimize(potential, z0: torch.Tensor, methods, *, steps: int, lr, decay: float = 0.1,
+             betas=(0.9, 0.999), eps: float = 1e-8) -> tuple[torch.Tensor, torch.Tensor]:
+    """Minimise ``-log f(x)`` (``potential.value_and_grad(z, jacobian=False)``) from the rows of ``z0`` ``[n, D]``.
+
+    Every row is an independent optimisation run; all rows share one batched potential evaluation per step.
+    ``methods[i]`` is ``"adam"`` or ``"sgd"`` (plain gradient descent) for row ``i``; ``lr`` is one step size or
+    one per row; the step size decays linearly to ``decay`` times itself over the run. Returns the final rows
+    ``[n, D]`` (unconstrained) and their energies ``[n]``.
+
+    Example:
+        >>> from bayes_brdf.potential import FunctionPotential
+        >>> pot = FunctionPotential(lambda z: ((z - 1) ** 2).sum(1), dim=2)
+        >>> z, u = optimize(pot, torch.zeros(2, 2, dtype=torch.float64), ["adam", "sgd"], steps=300, lr=[0.1, 0.1])
+        >>> bool((z - 1).abs().max() < 1e-2)
+        True
+    """
+    z = z0.detach().clone()
+    n = z.shape[0]
+    methods = [methods] * n if isinstance(methods, str) else list(methods)
+    if len(methods) != n or not set(methods) <= {"adam", "sgd"}:
+        raise ValueError(f"methods must be 'adam'/'sgd' per row, got {methods}")
+    lr = torch.as_tensor(lr, dtype=z.dtype, device=z.device).reshape(-1, 1).expand(n, 1)
+    adam = torch.tensor([m == "adam" for m in methods], device=z.device)[:, None]
+    m1, m2 = torch.zeros_like(z), torch.zeros_like(z)
+    b1, b2 = betas
+    for t in range(1, steps + 1):
+        _, g = potential.value_and_grad(z, jacobian=False)
+        g = torch.nan_to_num(g)
+        m1.mul_(b1).add_(g, alpha=1 - b1)
+        m2.mul_(b2).addcmul_(g, g, value=1 - b2)
+        step_adam = (m1 / (1 - b1 ** t)) / ((m2 / (1 - b2 ** t)).sqrt() + eps)
+        frac = 1.0 - (1.0 - decay) * (t - 1) / max(1, steps - 1)
+        z = z - frac * lr * torch.where(adam, step_adam, g)
+    with torch.no_grad():
+        u = potential.energy(z, jacobian=False)
+    return z, u
+
+
+def point_estimates(post, cfg: dict, seed: int) -> tuple[dict, dict]:
+    """``({estimate: {site: value}}, {estimate: energy})`` for (b1)-(b4)."""
+    pot = post.potential
+    like = post.particles
+    lo, hi = post.model.roughness_range
+    const = lambda site, v: torch.full_like(like[site][:1], float(v))  # noqa: E731
+    z_hi = pot.to_unconstrained({"albedo": const("albedo", 0.5), "roughness": const("roughness", cfg["init_high"])})
+    z_lo = pot.to_unconstrained({"albedo": const("albedo", 0.5), "roughness": const("roughness", cfg["init_low"])})
+    g = torch.Generator().manual_seed(10_000 + seed)
+    rnd = {}
+    for site, (a, b) in (("albedo", (0.0, 1.0)), ("roughness", (lo, hi))):
+        u = torch.rand(like[site][:1].shape, generator=g, dtype=like[site].dtype)
+        rnd[site] = a + (b - a) * (INIT_MARGIN + (1 - 2 * INIT_MARGIN) * u)
+    z_rnd = pot.to_unconstrained(rnd)
+    z0 = torch.cat([z_hi, z_lo, z_rnd])
+    z, u = optimize(pot, z0, ["adam", "adam", "sgd"], steps=cfg["opt_steps"],
+                    lr=[cfg["adam_lr"], cfg["adam_lr"], cfg["sgd_lr"]])
+    x = pot.to_constrained(z)
+    est = {name: {k: v[i] for k, v in x.items()} for i, name in enumerate(ESTIMATES[:3])}
+    est["b4_ours"] = post.map(refine_steps=cfg["refine_steps"], lr=0.01)
+    with torch.no_grad():
+        z4 = pot.to_unconstrained({k: v[None] for k, v in est["b4_ours"].items()})
+        u4 = pot.energy(z4, jacobian=False)
+    energies = {name: float(u[i]) for i, name in enumerate(ESTIMATES[:3])}
+    energies["b4_ours"] = float(u4[0])
+    return est, energies
+
+
+# ------------------------------------------------------------------ novel views
+def _dir(zenith: float, azimuth: float, r: float):
+    t, p = math.radians(zenith), math.radians(azimuth)
+    return (r * math.sin(t) * math.cos(p), r * math.sin(t) * math.sin(p), r * math.cos(t))
+
+
+def novel_views(resolution: int, radius: float = 3.0, power: float = 10.0) -> list[View]:
+    """The two novel views (rectified cameras at the map resolution; the observed views are collocated within
+    60 degrees zenith): ``grazing``, camera and flash together at 75 degrees zenith, and ``opposite``, camera and
+    light at 60 degrees zenith on opposite sides, whose mirror highlight sits in the middle of the sample."""
+    graze = _dir(75.0, 30.0, radius)
+    cam, light = _dir(60.0, 0.0, radius), _dir(60.0, 180.0, radius)
+    return [View.collocated(RectifiedCamera(graze, resolution=resolution), power=power, name="grazing"),
+            View(RectifiedCamera(cam, resolution=resolution), (PointLight(light, power),), name="opposite")]
+
+
+def _maps_of(model, values: list[dict]):
+    stacked = {k: torch.stack([v[k] for v in values]) for k in values[0]}
+    return model.maps(stacked)
+
+
+def _tonemap(img: np.ndarray, exposure: float) -> np.ndarray:
+    return np.clip(img / exposure, 0, 1) ** (1 / 2.2)
+
+
+def _overview(path, view_names, truth_r, est_r, errors, stds, vmaxes):
+    """Rows per novel view: top, the truth and the four estimates' renders; below, the std and their errors
+    (one colour range per view, shared by its std and error maps)."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    nv = len(view_names)
+    fig, axes = plt.subplots(2 * nv, 5, figsize=(11.2, 4.3 * nv), squeeze=False)
+    for v, name in enumerate(view_names):
+        vmax = vmaxes[v]
+        exposure = float(np.percentile(truth_r[v], 99.5)) or 1.0
+        top, bot = axes[2 * v], axes[2 * v + 1]
+        top[0].imshow(_tonemap(truth_r[v], exposure), interpolation="nearest")
+        top[0].set_title(f"{name}: truth", fontsize=8)
+        im = bot[0].imshow(stds[v], cmap=CMAP, vmin=0, vmax=vmax, interpolation="nearest")
+        bot[0].set_title(f"{name}: std (Eq. 11)", fontsize=8)
+        for j, e in enumerate(ESTIMATES):
+            top[j + 1].imshow(_tonemap(est_r[e][v], exposure), interpolation="nearest")
+            top[j + 1].set_title(LABELS[e], fontsize=8)
+            bot[j + 1].imshow(errors[e][v], cmap=CMAP, vmin=0, vmax=vmax, interpolation="nearest")
+            bot[j + 1].set_title(f"|error| {e[:2]}", fontsize=8)
+        for ax in (*top, *bot):
+            ax.set_axis_off()
+        cb = fig.colorbar(im, ax=list(bot), fraction=0.02, pad=0.01)
+        cb.ax.tick_params(labelsize=7)
+        cb.set_label("radiance (|error| and std)", fontsize=7)
+        fig.colorbar(im, ax=list(top), fraction=0.02, pad=0.01).ax.set_visible(False)   # keep the columns aligned
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=90, bbox_inches="tight")
+    plt.close(fig)
+    return Path(path)
+
+
+# ------------------------------------------------------------------ the experiment
+def run(out, preset: str = "small", seed: int = 0, progress: bool = False, **overrides) -> dict:
+    """Run Fig. 4 (see the module docstring); writes the PNGs and ``fig4.json`` into ``out`` and returns the numbers."""
+    cfg = _preset(sys.modules[__name__], preset, overrides)
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    R = int(cfg["resolution"])
+    truth, obs = synthetic(cfg["material"], R, views=int(cfg["views"]), seed=seed,
+                           noise_sigma=float(cfg["noise_sigma"]))
+    model = per_texel(R, specular=truth.specular, normals=truth.normal)
+
+    # SPOS, started from prior draws kept off the bounds (where the logit saturates)
+    pot0 = Potential(model, (ModelData.from_observations(obs),))
+    x0 = pot0.to_constrained(pot0.init(int(cfg["particles"]), seed=seed))
+    lo, hi = model.roughness_range
+    x0["albedo"] = x0["albedo"].clamp(INIT_MARGIN, 1 - INIT_MARGIN)
+    x0["roughness"] = x0["roughness"].clamp(lo + INIT_MARGIN * (hi - lo), hi - INIT_MARGIN * (hi - lo))
+    post = infer(model, obs, "spos_maps", seed=seed, steps=int(cfg["steps"]), z0=pot0.to_unconstrained(x0),
+                 progress=progress)
+    t_sample = time.perf_counter() - t0
+
+    t1 = time.perf_counter()
+    est, energies = point_estimates(post, cfg, seed)
+    t_point = time.perf_counter() - t1
+
+    views = novel_views(R)
+    names = [v.name for v in views]
+    with torch.no_grad():
+        mask = GBuffer.build(views, SURFACE).mask.numpy()                       # [V, H, W]
+        truth_r = render(truth, views, SURFACE)[0].numpy()                      # [V, H, W, 3]
+        est_r_all = render(_maps_of(model, [est[e] for e in ESTIMATES]), views, SURFACE).numpy()
+        std = image_std(post, views).mean(-1).numpy()                           # [V, H, W]
+    est_r = {e: est_r_all[i] for i, e in enumerate(ESTIMATES)}
+    errors = {e: np.abs(est_r[e] - truth_r).mean(-1) for e in ESTIMATES}
+
+    per_view = {}
+    for v, name in enumerate(names):
+        m = mask[v]
+        row = {"std_mean": float(std[v][m].mean()), "truth_mean_radiance": float(truth_r[v][m].mean())}
+        for e in ESTIMATES:
+            c = correlations(torch.from_numpy(std[v][m]), torch.from_numpy(errors[e][v][m]))
+            row[e] = {"pearson": c["pearson"], "spearman": c["spearman"], "mae": float(errors[e][v][m].mean())}
+        per_view[name] = row
+    avg = {e: {k: float(np.mean([per_view[n][e][k] for n in names])) for k in ("pearson", "spearman", "mae")}
+           for e in ESTIMATES}
+    param_err = {e: {"albedo_mae": float((est[e]["albedo"] - truth.albedo).abs().mean()),
+                     "roughness_mae": float((est[e]["roughness"] - truth.roughness).abs().mean())} for e in ESTIMATES}
+
+    vmaxes = [float(max(np.percentile(np.concatenate([std[v][mask[v]]] + [errors[e][v][mask[v]] for e in ESTIMATES]),
+                                      99), 1e-9)) for v in range(len(names))]
+    files = [_overview(out / "fig4.png", names, truth_r, est_r, errors, std, vmaxes)]
+    for v, name in enumerate(names):
+        panels = [("std (Eq. 11)", std[v])] + [(f"|error| {LABELS[e]}", errors[e][v]) for e in ESTIMATES]
+        files.append(figure_grid(out / f"fig4_{name}.png", panels, ncols=5, vmax=vmaxes[v],
+                                 title=f"Fig. 4, novel view '{name}': image-space std and |error| of (b1)-(b4), "
+                                       f"one range"))
+
+    summary = {"pearson": {e: round(avg[e]["pearson"], 3) for e in ESTIMATES},
+               "spearman": {e: round(avg[e]["spearman"], 3) for e in ESTIMATES},
+               "all_positive": bool(all(avg[e]["pearson"] > 0 and avg[e]["spearman"] > 0 for e in ESTIMATES)),
+               "seconds": round(time.perf_counter() - t0, 1)}
+    res = {"experiment": "fig4", "preset": preset, "seed": seed, "config": cfg, "novel_views": names,
+           "per_view": per_view, "average": avg, "energies": energies, "parameter_error": param_err,
+           "posterior_std": {"albedo": float(post.std("albedo").mean()),
+                             "roughness": float(post.std("roughness").mean())},
+           "seconds": {"sampling": t_sample, "point_estimates": t_point, "total": time.perf_counter() - t0},
+           "files": [p.name for p in files] + ["fig4.json"], "summary": summary}
+    write_json(out, "fig4", res)
+    return res
