@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import json
 import math
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -40,6 +41,26 @@ def fit(obs: Observations, resolution: int, *, steps: int, particles: int = 20, 
     return infer(model, obs, sampler, seed=seed, particles=particles, steps=steps, params=params, progress=progress)
 
 
+def prepare(module_name: str, preset: str, overrides: dict, out):
+    """``(config, out folder)`` of an experiment run: the module's preset with ``overrides``, ``out`` created."""
+    from . import preset as _preset
+
+    cfg = _preset(sys.modules[module_name], preset, overrides)
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    return cfg, out
+
+
+def save_figure(fig, path, *, dpi: int = 110, tight: bool = False) -> Path:
+    """Write ``fig`` to ``path`` (PNG; folders created) and close it."""
+    import matplotlib.pyplot as plt
+
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=dpi, **({"bbox_inches": "tight"} if tight else {}))
+    plt.close(fig)
+    return Path(path)
+
+
 def write_json(out, name: str, data: dict) -> Path:
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -71,10 +92,7 @@ def figure_grid(path, panels, *, ncols: int | None = None, title: str = "", shar
     if title:
         fig.suptitle(title, fontsize=9)
     fig.tight_layout()
-    Path(path).parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return Path(path)
+    return save_figure(fig, path)
 
 
 def line_plot(path, series: dict, *, xlabel: str, ylabel: str, title: str = "", logx: bool = False,
@@ -99,10 +117,7 @@ def line_plot(path, series: dict, *, xlabel: str, ylabel: str, title: str = "", 
     ax.grid(alpha=0.3)
     ax.legend(fontsize=7)
     fig.tight_layout()
-    Path(path).parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return Path(path)
+    return save_figure(fig, path)
 
 
 def views_at(obs: Observations):

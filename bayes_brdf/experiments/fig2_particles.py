@@ -18,15 +18,12 @@ spread of about ``1 / sqrt(2 (n - 1))``: 0.18 at n = 16), so the headline is the
 """
 from __future__ import annotations
 
-import sys
 import time
-from pathlib import Path
 
 import numpy as np
 import torch
 
-from . import preset as _preset
-from .common import figure_grid, line_plot, synthetic, write_json
+from .common import figure_grid, line_plot, prepare, synthetic, write_json
 from ..errors import InputError
 from ..inference import infer
 from ..models.data import ModelData
@@ -60,9 +57,7 @@ def start(model, obs, n: int, seed: int, margin: float) -> torch.Tensor:
 
 def run(out, preset: str = "small", seed: int = 0, progress: bool = False, **overrides) -> dict:
     """Run the ablation; write ``fig2_std_vs_particles.png``, ``fig2_roughness_std_maps.png`` and ``fig2.json``."""
-    cfg = _preset(sys.modules[__name__], preset, overrides)
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
+    cfg, out = prepare(__name__, preset, overrides, out)
     ns = sorted(set(_ints(cfg["particles"])))
     if len(ns) < 2 or ns[0] < 2:
         raise InputError(f"particles must list at least two counts >= 2, got {cfg['particles']!r}",

@@ -29,15 +29,12 @@ docs/experiments.md).
 from __future__ import annotations
 
 import math
-import sys
 import time
-from pathlib import Path
 
 import numpy as np
 import torch
 
-from . import preset as _preset
-from .common import SURFACE, figure_grid, line_plot, synthetic, write_json
+from .common import SURFACE, figure_grid, line_plot, prepare, synthetic, write_json
 from .fig2_particles import _ints, start
 from ..errors import InputError
 from ..inference import infer
@@ -89,9 +86,7 @@ def _spearman(a: torch.Tensor, b: torch.Tensor) -> float:
 def run(out, preset: str = "small", seed: int = 0, progress: bool = False, **overrides) -> dict:
     """Run the experiment; write ``fig3_<config>.png`` per configuration, ``fig3_std_vs_observations.png``
     and ``fig3.json``."""
-    cfg = _preset(sys.modules[__name__], preset, overrides)
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
+    cfg, out = prepare(__name__, preset, overrides, out)
     counts = _ints(cfg["counts"])
     configs = [c for c in str(cfg["configs"]).replace(" ", "").split(",") if c]
     for c in configs:

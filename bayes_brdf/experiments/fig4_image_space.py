@@ -25,15 +25,12 @@ averaged over the two views.
 from __future__ import annotations
 
 import math
-import sys
 import time
-from pathlib import Path
 
 import numpy as np
 import torch
 
-from . import preset as _preset
-from .common import SURFACE, figure_grid, synthetic, write_json
+from .common import SURFACE, figure_grid, prepare, save_figure, synthetic, write_json
 from ..inference import infer
 from ..models.data import ModelData
 from ..models.material import per_texel
@@ -183,18 +180,13 @@ def _overview(path, view_names, truth_r, est_r, errors, stds, vmaxes):
         cb.ax.tick_params(labelsize=7)
         cb.set_label("radiance (|error| and std)", fontsize=7)
         fig.colorbar(im, ax=list(top), fraction=0.02, pad=0.01).ax.set_visible(False)   # keep the columns aligned
-    Path(path).parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=90, bbox_inches="tight")
-    plt.close(fig)
-    return Path(path)
+    return save_figure(fig, path, dpi=90, tight=True)
 
 
 # ------------------------------------------------------------------ the experiment
 def run(out, preset: str = "small", seed: int = 0, progress: bool = False, **overrides) -> dict:
     """Run Fig. 4 (see the module docstring); writes the PNGs and ``fig4.json`` into ``out`` and returns the numbers."""
-    cfg = _preset(sys.modules[__name__], preset, overrides)
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
+    cfg, out = prepare(__name__, preset, overrides, out)
     t0 = time.perf_counter()
     R = int(cfg["resolution"])
     truth, obs = synthetic(cfg["material"], R, views=int(cfg["views"]), seed=seed,

@@ -23,15 +23,12 @@ std is below 0.05, and the mean / 99th percentile of the novel view's image-spac
 """
 from __future__ import annotations
 
-import sys
 import time
-from pathlib import Path
 
 import numpy as np
 import torch
 
-from . import preset as _preset
-from .common import SURFACE, figure_grid, write_json
+from .common import SURFACE, figure_grid, prepare, save_figure, write_json
 from ..guidance.acquisition import SyntheticCapture
 from ..inference import infer
 from ..models.data import ModelData
@@ -112,17 +109,12 @@ def _overview(path, res, truth_render, hist, vmaxes, truth_rough):
     ax.legend(fontsize=7)
     fig.suptitle("Fig. 5: smooth plane, 10 collocated views, without (top) / with (bottom) a low-roughness prior",
                  fontsize=9)
-    Path(path).parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=85, bbox_inches="tight")
-    plt.close(fig)
-    return Path(path)
+    return save_figure(fig, path, dpi=85, tight=True)
 
 
 def run(out, preset: str = "small", seed: int = 0, progress: bool = False, **overrides) -> dict:
     """Run Fig. 5 (see the module docstring); writes the PNGs and ``fig5.json`` into ``out`` and returns the numbers."""
-    cfg = _preset(sys.modules[__name__], preset, overrides)
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
+    cfg, out = prepare(__name__, preset, overrides, out)
     t0 = time.perf_counter()
     R, rough = int(cfg["resolution"]), float(cfg["roughness"])
     truth = SVBRDF.constant(ALBEDO, rough, 0.04, dtype=torch.float32)

@@ -20,7 +20,6 @@ rendering error of the MAP estimate and the mean image-space std (Eq. 11). Numbe
 from __future__ import annotations
 
 import statistics
-import sys
 from pathlib import Path
 
 import torch
@@ -29,8 +28,7 @@ from ..guidance.acquisition import Evaluation, SyntheticCapture, guided_acquisit
 from ..guidance.recommend import low_discrepancy
 from ..models.material import per_texel
 from ..render.views import collocated_views, hemisphere_directions, light_stage_views
-from . import preset as _preset
-from .common import SURFACE, line_plot, write_json
+from .common import SURFACE, line_plot, prepare, write_json
 
 DESCRIPTION = "guided capture (MI) vs low-discrepancy baseline: novel-view error and image-space std vs views"
 
@@ -103,9 +101,7 @@ def _mean_curves(runs: list[dict]) -> dict:
 
 
 def run(out, preset: str = "small", seed: int = 0, progress: bool = False, **overrides) -> dict:
-    cfg = _preset(sys.modules[__name__], preset, overrides)
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
+    cfg, out = prepare(__name__, preset, overrides, out)
     result = {"preset": preset, "config": cfg, "settings": {}}
     summary = {}
     for kind in ("collocated", "light_stage"):
