@@ -168,10 +168,16 @@ def colorize(x, vmin: float = 0.0, vmax: float | None = None, cmap: str = CMAP) 
     return (matplotlib.colormaps[cmap](t)[..., :3] * 255 + 0.5).astype(np.uint8)
 
 
-def _scalar(img) -> Tensor:
+def _hwc(img) -> Tensor:
+    """``img`` as ``[H, W]`` or ``[H, W, C]`` (a channel-first ``[C, H, W]`` map with C <= 3 is moved)."""
     t = torch.as_tensor(img).detach().float().cpu()
     if t.dim() == 3 and t.shape[0] in (1, 2, 3) and t.shape[-1] not in (1, 2, 3):
         t = t.movedim(0, -1)  # channel-first map
+    return t
+
+
+def _scalar(img) -> Tensor:
+    t = _hwc(img)
     return t.mean(-1) if t.dim() == 3 else t
 
 
@@ -191,7 +197,8 @@ def show_map(fig, ax, value, vmin: float, vmax: float, title: str = "", unit: st
 def write_map(path, value, *, title: str = "", vmin: float = 0.0, vmax: float | None = None,
               unit: str = "", exr: bool = True) -> Path:
     """Write ``value`` (``[H, W]``, ``[H, W, C]`` or channel-first ``[C, H, W]``) as ``path.exr`` and a
-    colour-mapped ``path.png`` with a colour bar (channels are averaged for the PNG). Returns the PNG path."""
+    colour-mapped ``path.png`` with a colour bar (channels are averaged for the PNG). The EXR is RGB: one
+    channel is repeated, two are stored as R, G with B = 0. Returns the PNG path."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -200,11 +207,17 @@ def write_map(path, value, *, title: str = "", vmin: float = 0.0, vmax: float | 
 
     path = Path(path).with_suffix("")
     path.parent.mkdir(parents=True, exist_ok=True)
-    t = torch.as_tensor(value).detach().float().cpu()
+    t = _hwc(value)
+    if t.dim() != 2 and not (t.dim() == 3 and t.shape[-1] <= 3):
+        raise InputError(f"write_map: a map is [H, W], [H, W, C] or [C, H, W] with C <= 3, got {tuple(t.shape)}",
+                         where=path, fix="write one channel group per call")
     if exr:
-        e = t.movedim(0, -1) if (t.dim() == 3 and t.shape[0] in (1, 3) and t.shape[-1] not in (1, 3)) else t
-        e = e[..., None] if e.dim() == 2 else e
-        write_exr(path.with_suffix(".exr"), e.expand(*e.shape[:2], 3) if e.shape[-1] != 3 else e)
+        e = t[..., None] if t.dim() == 2 else t
+        if e.shape[-1] == 1:   # grey: the value in R, G and B (every viewer shows it)
+            e = e.expand(*e.shape[:2], 3)
+        elif e.shape[-1] == 2:   # e.g. normal slopes: R, G with B = 0
+            e = torch.cat([e, torch.zeros_like(e[..., :1])], -1)
+        write_exr(path.with_suffix(".exr"), e)
     s = _scalar(t).numpy()
     if vmax is None:
         fin = s[np.isfinite(s)]

@@ -161,15 +161,17 @@ def test_colorize_uses_the_colormap_and_clips():
     np.testing.assert_array_equal(colorize(v[None]), colorize(v[None], vmax=float(np.percentile(v, 99))))
 
 
-@pytest.mark.parametrize("shape", [(12, 10), (12, 10, 3), (3, 12, 10)])
+@pytest.mark.parametrize("shape", [(12, 10), (12, 10, 3), (3, 12, 10), (12, 10, 2), (2, 12, 10)])
 def test_write_map_writes_exact_exr_and_a_colour_png(tmp_path, shape):
     g = torch.Generator().manual_seed(1)
     v = torch.rand(*shape, generator=g) * 0.3
     png = write_map(tmp_path / "sub" / "std_map", v, title="std", unit="radiance")
     assert png == tmp_path / "sub" / "std_map.png" and png.is_file()
     back = read_image(tmp_path / "sub" / "std_map.exr")
-    hwc = v.movedim(0, -1) if shape[0] == 3 else v
+    hwc = v.movedim(0, -1) if shape[0] in (2, 3) else v
     hwc = hwc[..., None] if hwc.dim() == 2 else hwc
+    if hwc.shape[-1] == 2:                                               # two channels: R, G and B = 0
+        hwc = torch.cat([hwc, torch.zeros(12, 10, 1)], -1)
     assert back.shape == (12, 10, 3)
     np.testing.assert_array_equal(back, np.broadcast_to(hwc.numpy(), (12, 10, 3)))
     im = Image.open(png)
@@ -185,3 +187,8 @@ def test_write_map_writes_exact_exr_and_a_colour_png(tmp_path, shape):
     # png only
     write_map(tmp_path / "only_png", v, exr=False)
     assert (tmp_path / "only_png.png").is_file() and not (tmp_path / "only_png.exr").exists()
+
+
+def test_write_map_refuses_a_stack_of_maps_in_one_line(tmp_path):
+    with pytest.raises(InputError, match=r"write_map: a map is .* got \(12, 10, 5\)"):
+        write_map(tmp_path / "stack", torch.zeros(12, 10, 5))
