@@ -141,4 +141,18 @@ def run(a) -> int:
                 f"(with the fitted noise {h['fitted_sigma']:.3f} instead of sigma {summary['model_sigma']}: "
                 f"{h['coverage_with_fitted_sigma']['50']:.2f}, {h['coverage_with_fitted_sigma']['90']:.2f})")
     print(msg + f" -> {out}/ (summary.json, map/, mean/, std/, heldout/)")
+    hint = sigma_hint(summary)
+    if hint:
+        print(hint)
     return 0
+
+
+def sigma_hint(summary: dict) -> str:
+    """A line advising a larger model sigma when the fitted photos' residuals are over twice its value
+    (the predictive intervals are then too narrow: real photos differ from the model by more than sigma)."""
+    fitted, model = summary.get("heldout", {}).get("fitted_sigma"), summary.get("model_sigma")
+    if not fitted or not model or fitted <= 2 * model:
+        return ""
+    return (f"note: the fitted photos differ from the MAP render by a Laplace scale of {fitted:.3f}, "
+            f"{fitted / model:.1f}x the model's sigma {model:g}, so the intervals are too narrow; "
+            f"rerun with --model-param sigma={fitted:.2f} for calibrated ones (see docs/guidance.md)")

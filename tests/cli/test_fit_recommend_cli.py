@@ -31,8 +31,38 @@ def test_fit_holds_out_views_and_reports_calibration(bundle, tmp_path, capsys):
         assert (out / "heldout" / name).is_file(), name
     for name in ("std/albedo.png", "std/roughness.exr", "map/albedo.png", "posterior.safetensors"):
         assert any((out / name).parent.glob((out / name).name.split(".")[0] + "*")), name
-    line = capsys.readouterr().out
+    line = capsys.readouterr().out.splitlines()[0]
     assert "Pearson" in line and "coverage" in line
+
+
+def test_fit_advises_a_larger_sigma_when_the_photos_are_noisier_than_the_model(tmp_path, capsys):
+    import torch
+
+    from bayes_brdf.guidance.acquisition import SyntheticCapture
+    from bayes_brdf.io import save_observations
+    from bayes_brdf.materials import make_material
+    from bayes_brdf.render import PlanarSample
+    from bayes_brdf.render.views import collocated_views
+
+    truth = make_material("wood", 12, seed=0).to(torch.float32)
+    views = collocated_views(6, 3.0, method="sobol", camera="rectified", resolution=12, power=10.0)
+    noisy = SyntheticCapture(truth, PlanarSample(2.0), noise_sigma=0.08, seed=0)(views)
+    noisy.images.clamp_(min=0)                          # a saved photo holds no negative radiance
+    save_observations(noisy, tmp_path / "noisy")
+    out = tmp_path / "fit"
+    assert main(["fit", str(tmp_path / "noisy"), "--views", "0,2,4", "--resolution", "12", "--steps", "300",
+                 "--out", str(out)]) == 0
+    note = capsys.readouterr().out.strip().splitlines()[-1]
+    fitted = json.loads((out / "summary.json").read_text())["heldout"]["fitted_sigma"]
+    assert fitted > 0.02 and note.startswith("note:") and f"--model-param sigma={fitted:.2f}" in note
+
+
+def test_sigma_hint_only_when_the_residuals_exceed_twice_sigma():
+    from bayes_brdf.cli.fit import sigma_hint
+
+    assert sigma_hint({"model_sigma": 0.01, "heldout": {"fitted_sigma": 0.019}}) == ""
+    assert sigma_hint({"model_sigma": 0.01}) == ""
+    assert "4.0x the model's sigma 0.01" in sigma_hint({"model_sigma": 0.01, "heldout": {"fitted_sigma": 0.04}})
 
 
 def test_fit_bad_split_is_one_line(bundle, tmp_path, capsys):
