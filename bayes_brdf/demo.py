@@ -106,7 +106,7 @@ def run(out, *, progress: bool = False, log=print, **overrides) -> Path:
 
     # 4. recommend
     t = time.perf_counter()
-    scores = score_views(post, cands, SURFACE, seed=seed, noise_var="observation")
+    scores = score_views(post, cands, SURFACE, seed=seed)
     rec = recommend(post, cands, int(cfg["k"]), radius=float(cfg["radius"]), exclude=init_idx, scores=scores)
     times["recommend"] = time.perf_counter() - t
     from .cli.recommend import _plot
@@ -124,7 +124,7 @@ def run(out, *, progress: bool = False, log=print, **overrides) -> Path:
         res = guided_acquisition(per_texel(R), obs, cands, cap, rounds=int(cfg["rounds"]), k=int(cfg["k"]),
                                  method=method, radius=float(cfg["radius"]), steps=int(cfg["steps"]),
                                  particles=int(cfg["particles"]), seed=seed, initial_indices=init_idx, evaluation=ev,
-                                 out=out / "guided" / method, score_kw={"noise_var": "observation"})
+                                 out=out / "guided" / method)
         curves[label] = res
     times["guided"] = time.perf_counter() - t
     err_png = line_plot(out / "guided" / "novel_error.png",

@@ -31,9 +31,9 @@ def add_parser(sub):
                         "(default: %(default)s)")
     r.add_argument("--estimator", default="mc", choices=["mc", "quadrature"],
                    help="entropy estimator: mc (Eq. 21) or quadrature (deterministic, slower) (default: %(default)s)")
-    r.add_argument("--noise-var", default="observation",
-                   help="noise variance in the score: 'observation' (the model's photo noise, default), or a number; "
-                        "0 is the paper's noise-free renderer")
+    r.add_argument("--noise-var", default="0",
+                   help="noise variance in the score: a number (0, the default, is the paper's noise-free renderer) "
+                        "or 'observation' (the model's photo noise; see docs/guidance.md)")
     r.set_defaults(func=run)
 
 
@@ -120,9 +120,8 @@ def run(a) -> int:
         post.save(out / "posterior.safetensors")
     t_fit = time.perf_counter() - t0
     cands, labels = _candidates(a.candidates, full, fitted)
-    scores = None
+    scores, nv = None, a.noise_var
     if a.method in ("mi", "std"):
-        nv = a.noise_var
         if nv != "observation":
             try:
                 nv = float(nv)
@@ -134,7 +133,7 @@ def run(a) -> int:
     rec = recommend(post, cands, a.k, method=a.method, radius=a.radius, surface=full.surface, seed=a.seed,
                     scores=scores, offset=len(fitted))
     result = {"capture": str(a.capture), "fitted_views": fitted, "candidates": a.candidates, "method": a.method,
-              "k": a.k, "radius_deg": a.radius, "estimator": a.estimator, "noise_var": a.noise_var,
+              "k": a.k, "radius_deg": a.radius, "estimator": a.estimator, "noise_var": nv,
               "fit_seconds": t_fit,
               "recommended": [labels[i] for i in rec.indices], **rec.to_dict()}
     if scores is not None:

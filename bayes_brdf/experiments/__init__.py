@@ -35,12 +35,22 @@ def get(name: str):
 
 
 def preset(module, name: str, overrides: dict | None = None) -> dict:
-    """The preset table ``name`` of ``module`` with ``overrides`` applied (unknown keys are an error)."""
+    """The preset table ``name`` of ``module`` with ``overrides`` applied (unknown keys and values that do not
+    parse are one-line errors). A setting is parsed as its default's type (int, float), or by the module's
+    ``SETTING_TYPES[key]`` where the module has one."""
     if name not in module.PRESETS:
         raise InputError(f"unknown preset '{name}'", fix=f"use one of {', '.join(module.PRESETS)}")
     cfg = dict(module.PRESETS[name])
+    types = getattr(module, "SETTING_TYPES", {})
     for k, v in (overrides or {}).items():
         if k not in cfg:
             raise InputError(f"unknown setting '{k}' for this experiment", fix=f"settings: {', '.join(sorted(cfg))}")
-        cfg[k] = type(cfg[k])(v) if isinstance(cfg[k], (int, float)) and not isinstance(cfg[k], bool) else v
+        conv = types.get(k) or (type(cfg[k]) if isinstance(cfg[k], (int, float)) and not isinstance(cfg[k], bool)
+                                else None)
+        try:
+            cfg[k] = conv(v) if conv is not None else v
+        except InputError:
+            raise
+        except (TypeError, ValueError):
+            raise InputError(f"bad value '{v}' for setting '{k}'", fix=f"give a value like the default {cfg[k]!r}") from None
     return cfg

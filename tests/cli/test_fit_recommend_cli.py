@@ -103,8 +103,19 @@ def test_experiment_list_and_unknown(capsys):
     assert all(name in listed for name in ("fig2", "fig3", "fig4", "fig5", "fig7"))
     assert main(["experiment", "fig99"]) == 2
     assert main(["experiment", "fig7", "--set", "nope=1"]) == 2
+    assert main(["experiment", "fig2", "--set", "steps=many"]) == 2
+    assert main(["experiment", "fig7", "--set", "noise_var=-1"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 2 and "unknown experiment" in err[0] and "unknown setting" in err[1]
+    assert len(err) == 4 and "unknown experiment" in err[0] and "unknown setting" in err[1]
+    assert "bad value 'many' for setting 'steps'" in err[2] and "number >= 0 or 'observation'" in err[3]
+
+
+def test_experiment_settings_parse_as_their_defaults():
+    from bayes_brdf.experiments import fig7_guided, preset
+
+    cfg = preset(fig7_guided, "small", {"noise_var": "observation", "steps": "20", "radius": "5"})
+    assert cfg["noise_var"] == "observation" and cfg["steps"] == 20 and cfg["radius"] == 5.0
+    assert preset(fig7_guided, "small", {"noise_var": "1e-4"})["noise_var"] == 1e-4
 
 
 def test_demo_writes_a_self_contained_report(tmp_path, capsys):
