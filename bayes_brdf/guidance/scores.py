@@ -24,6 +24,7 @@ import torch
 from torch import Tensor
 
 from ..errors import InputError
+from ..render.gbuffer import GBuffer
 from ..render.shade import shade_chunks
 from ..uncertainty import _CACHE, _particle_maps, _surface
 from .entropy import kde_entropy, noise_entropy
@@ -53,6 +54,20 @@ def counted_pixels(g, map_resolution, footprint: bool = True) -> Tensor:
     if footprint and tuple(map_resolution) != (1, 1):
         return g.unique_pixel_mask(tuple(map_resolution))
     return g.mask
+
+
+def _gbuffer_blocks(candidates: list, surface, dtype, device, max_bytes: int | None = None):
+    """``(first index, G-buffer)`` over ``candidates``: one cached G-buffer when it fits the cache's budget
+    (a candidate set scored every round is built once), else blocks of at most ``max_bytes`` built one at a
+    time, so a large set (e.g. 500 cameras x 30 lights at 64^2, several GB) never sits in memory whole."""
+    max_bytes = _CACHE.max_bytes if max_bytes is None else max_bytes
+    per_view = max(GBuffer.bytes_per_view(v, dtype) for v in candidates)
+    if per_view * len(candidates) <= max_bytes:
+        yield 0, _CACHE.get(tuple(candidates), surface, dtype=dtype, device=device)
+        return
+    step = max(1, max_bytes // (4 * per_view))
+    for b0 in range(0, len(candidates), step):
+        yield b0, GBuffer.build(candidates[b0:b0 + step], surface, dtype=dtype, device=device)
 
 
 def observation_noise_var(post) -> float:
@@ -95,9 +110,8 @@ def score_views(post: "Posterior | SVBRDF", candidates: list, surface=None, *, e
     if n < 2:
         raise InputError(f"scoring views needs at least 2 particles, got {n}")
     dt, dev = maps.albedo.dtype, maps.albedo.device
-    g = _CACHE.get(tuple(candidates), surface, dtype=dt, device=dev)
-    C, (H, W) = g.num_views, g.resolution
-    keep = counted_pixels(g, maps.albedo.shape[-2:], footprint)
+    C = len(candidates)
+    H, W = candidates[0].resolution
     gen = torch.Generator().manual_seed(int(seed))
     u = torch.rand(3 * H * W, generator=gen, dtype=dt).to(dev)   # common random numbers, by pixel position
     e = torch.randn(3 * H * W, generator=gen, dtype=dt).to(dev)
@@ -105,25 +119,28 @@ def score_views(post: "Posterior | SVBRDF", candidates: list, surface=None, *, e
     h0 = noise_entropy(noise_var)
     mi = torch.zeros(C, dtype=torch.float64, device=dev)
     sdsum = torch.zeros(C, dtype=torch.float64, device=dev)
+    px = torch.zeros(C, dtype=torch.long, device=dev)
     if chunk_views is None:
         chunk_views = max(1, (16 * 2**20) // (n * 3 * H * W))
     kw = dict(nodes=nodes, noise_var=noise_var, min_bandwidth=min_bandwidth, backend=backend)
     P = 3 * H * W
     with torch.no_grad():
-        for s, stop, r in shade_chunks(maps, g, chunk_views=chunk_views):   # r [n, v, 3, H, W]
-            v = stop - s
-            k = keep[s:stop, None].expand(v, 3, H, W)
-            if float(k.float().mean()) > 0.5:   # dense: score every pixel, weight by the counted ones
-                h, sd = kde_entropy(r.reshape(n, v * P), estimator, u=u.repeat(v), e=e.repeat(v), **kw)
-                wk = k.reshape(v, P).to(h.dtype)
-                mi[s:stop] = ((h.view(v, P) - h0) * wk).double().sum(1)
-                sdsum[s:stop] = (sd.view(v, P) * wk).double().sum(1)
-            else:                               # sparse (many pixels per texel): gather the counted ones
-                p = pos.expand(v, 3, H, W)[k]
-                vid = torch.arange(s, stop, device=dev)[:, None, None, None].expand(v, 3, H, W)[k]
-                h, sd = kde_entropy(r[:, k], estimator, u=u[p], e=e[p], **kw)
-                mi.index_add_(0, vid, h.double() - h0)
-                sdsum.index_add_(0, vid, sd.double())
-    px = keep.reshape(C, -1).sum(1)
+        for b0, g in _gbuffer_blocks(candidates, surface, dt, dev):
+            keep = counted_pixels(g, maps.albedo.shape[-2:], footprint)
+            px[b0:b0 + g.num_views] = keep.reshape(g.num_views, -1).sum(1)
+            for s, stop, r in shade_chunks(maps, g, chunk_views=chunk_views):   # r [n, v, 3, H, W]
+                v, c0, c1 = stop - s, b0 + s, b0 + stop
+                k = keep[s:stop, None].expand(v, 3, H, W)
+                if float(k.float().mean()) > 0.5:   # dense: score every pixel, weight by the counted ones
+                    h, sd = kde_entropy(r.reshape(n, v * P), estimator, u=u.repeat(v), e=e.repeat(v), **kw)
+                    wk = k.reshape(v, P).to(h.dtype)
+                    mi[c0:c1] = ((h.view(v, P) - h0) * wk).double().sum(1)
+                    sdsum[c0:c1] = (sd.view(v, P) * wk).double().sum(1)
+                else:                               # sparse (many pixels per texel): gather the counted ones
+                    p = pos.expand(v, 3, H, W)[k]
+                    vid = torch.arange(c0, c1, device=dev)[:, None, None, None].expand(v, 3, H, W)[k]
+                    h, sd = kde_entropy(r[:, k], estimator, u=u[p], e=e[p], **kw)
+                    mi.index_add_(0, vid, h.double() - h0)
+                    sdsum.index_add_(0, vid, sd.double())
     mean_std = sdsum / (3 * px).clamp_min(1)
     return CandidateScores(mi.cpu(), mean_std.cpu(), px.cpu(), estimator, time.perf_counter() - t0)

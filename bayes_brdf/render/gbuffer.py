@@ -104,6 +104,19 @@ class GBuffer:
         return self.position.shape[0]
 
     @property
+    def nbytes(self) -> int:
+        """Memory held by the G-buffer's tensors (the expanded frame vectors count once)."""
+        return sum(t.untyped_storage().nbytes() for f in fields(self)
+                   if isinstance(t := getattr(self, f.name), Tensor))
+
+    @staticmethod
+    def bytes_per_view(view: View, dtype=torch.float32) -> int:
+        """Memory one view adds to a G-buffer (``dtype`` values; for planning chunks before building)."""
+        h, w = view.resolution
+        L = len(view.lights)
+        return h * w * ((8 + 7 * L) * torch.empty((), dtype=dtype).element_size() + 1)
+
+    @property
     def resolution(self) -> tuple[int, int]:
         return tuple(self.position.shape[-2:])
 
@@ -174,17 +187,26 @@ class GBufferCache:
         True
     """
 
-    def __init__(self, max_entries: int = 64):
+    def __init__(self, max_entries: int = 64, max_bytes: int = 1 << 30):
         self._store: OrderedDict = OrderedDict()
         self.max_entries = max_entries
+        self.max_bytes = max_bytes
+
+    @property
+    def nbytes(self) -> int:
+        return sum(g.nbytes for g in self._store.values())
 
     def get(self, views, surface, dtype=torch.float32, device=None) -> GBuffer:
+        """The G-buffer of ``views``; built on a miss and kept unless it alone exceeds ``max_bytes``
+        (least recently used entries go first when there are over ``max_entries`` or ``max_bytes``)."""
         key = (tuple(views), surface, dtype, str(torch.device(device) if device is not None else "cpu"))
         if key in self._store:
             self._store.move_to_end(key)
             return self._store[key]
         g = GBuffer.build(list(views), surface, dtype=dtype, device=device)
+        if g.nbytes > self.max_bytes:
+            return g
         self._store[key] = g
-        if len(self._store) > self.max_entries:
+        while len(self._store) > self.max_entries or self.nbytes > self.max_bytes:
             self._store.popitem(last=False)
         return g

@@ -84,6 +84,23 @@ def test_mi_equals_per_view_reference_and_chunking_does_not_matter(camera, res, 
     torch.testing.assert_close(m_all.mi, m_one.mi, rtol=1e-12, atol=1e-9)
 
 
+def test_a_candidate_set_over_the_memory_budget_is_scored_in_blocks_with_the_same_result(monkeypatch):
+    from bayes_brdf.uncertainty import _CACHE
+
+    maps = _random_maps()
+    views = collocated_views(9, 3.0, camera="perspective", resolution=32, power=10.0, max_zenith=60, seed=3)
+    whole = score_views(maps, views, S, estimator="quadrature")
+    built = []
+    monkeypatch.setattr(GBuffer, "build", classmethod(lambda cls, vs, *a, _b=GBuffer.build, **k:
+                                                      built.append(len(vs)) or _b(vs, *a, **k)))
+    monkeypatch.setattr(_CACHE, "max_bytes", 8 * GBuffer.bytes_per_view(views[0], F64))   # blocks of 2 views
+    blocks = score_views(maps, views, S, estimator="quadrature")
+    assert built == [2, 2, 2, 2, 1]                    # never the whole set at once, and nothing cached
+    torch.testing.assert_close(blocks.mi, whole.mi, rtol=1e-12, atol=1e-9)
+    torch.testing.assert_close(blocks.pixels, whole.pixels)
+    torch.testing.assert_close(blocks.mean_std, whole.mean_std, rtol=1e-12, atol=1e-12)
+
+
 def test_posterior_input_equals_its_particle_maps():
     g = torch.Generator().manual_seed(2)
     n = 5

@@ -115,3 +115,21 @@ def test_cache_returns_same_gbuffer_and_builds_once():
 def test_camera_below_the_sample_sees_nothing():
     g = GBuffer.build([View.collocated(PerspectiveCamera((0, 0, -3.0), resolution=(4, 4)))], PlanarSample())
     assert not g.mask.any()
+
+
+def test_gbuffer_cache_stays_within_its_byte_budget():
+    from bayes_brdf.render.gbuffer import GBufferCache
+    from bayes_brdf.render.views import collocated_views
+
+    S = PlanarSample(2.0)
+    sets = [tuple(collocated_views(2, 3.0, resolution=16, seed=i, method="random")) for i in range(4)]
+    one = GBuffer.build(list(sets[0]), S).nbytes
+    assert one >= 2 * GBuffer.bytes_per_view(sets[0][0]) * 0.9      # the planning estimate is close
+    cache = GBufferCache(max_entries=10, max_bytes=int(2.5 * one))
+    for vs in sets:
+        cache.get(vs, S)
+    assert cache.nbytes <= 2.5 * one and len(cache._store) == 2     # the two most recent are kept
+    assert cache.get(sets[3], S) is cache.get(sets[3], S)
+    big = tuple(collocated_views(6, 3.0, resolution=16))
+    g = cache.get(big, S)                                            # alone over the budget: returned, not kept
+    assert g.num_views == 6 and cache.get(big, S) is not g and cache.nbytes <= 2.5 * one
