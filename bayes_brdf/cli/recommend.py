@@ -149,4 +149,6 @@ def run(a) -> int:
     if scores is not None and a.candidates == "heldout":
         order = sorted(range(len(cands)), key=lambda i: -float(scores.mi[i]))
         print("ranking by mutual information: " + " > ".join(str(labels[i]) for i in order))
+    if scores is not None and nv == 0 and bool((scores.mi < 0).any()):
+        print("(the noise-free score is a differential entropy, so it can be negative: only the order matters)")
     return 0

@@ -82,6 +82,7 @@ def test_recommend_ranks_heldout_views_then_reuses_the_posterior(bundle, tmp_pat
     by_mi = sorted(r["all"], key=lambda c: -c["mi"])
     assert [c["candidate"] for c in by_mi[:2]] == r["recommended"]   # radius 0: the top two by MI
     assert all(math.isfinite(c["mi"]) for c in r["all"]) and (out / "candidates.png").is_file()
+    assert r["noise_var"] == 0.0                                        # the paper's noise-free score by default
     # reuse the posterior file (no fitting), generated candidates
     post = out / "posterior.safetensors"
     assert Posterior.load(post).model is not None
@@ -90,6 +91,11 @@ def test_recommend_ranks_heldout_views_then_reuses_the_posterior(bundle, tmp_pat
                  "--candidates", "fibonacci:40", "--k", "3", "--radius", "15", "--out", str(out2)]) == 0
     r2 = json.loads((out2 / "recommend.json").read_text())
     assert len(r2["recommended"]) == 3 and r2["fit_seconds"] < 30
+    out3 = tmp_path / "rec3"
+    assert main(["recommend", str(bundle), "--posterior", str(post), "--candidates", "fibonacci:40", "--k", "3",
+                 "--noise-var", "observation", "--out", str(out3)]) == 0
+    r3 = json.loads((out3 / "recommend.json").read_text())
+    assert r3["noise_var"] == "observation" and all(c["mi"] > r2c["mi"] for c, r2c in zip(r3["all"], r2["all"]))
     capsys.readouterr()
     assert main(["recommend", str(bundle), "--posterior", str(post), "--candidates", "grid:9",
                  "--out", str(tmp_path / "r3")]) == 2
