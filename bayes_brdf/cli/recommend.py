@@ -99,9 +99,11 @@ def _plot(path, cands, scores, picks, title):
 def run(a) -> int:
     from ..errors import InputError
     from ..guidance import recommend, score_views
+    from ..guidance.scores import parse_noise_var
     from ..io import load_capture
     from ..posterior import Posterior
 
+    nv = parse_noise_var(a.noise_var)           # checked before any fitting
     t0 = time.perf_counter()
     full = load_capture(a.capture, resolution=a.resolution)
     fitted = list(range(len(full))) if a.views is None else list(a.views)
@@ -120,15 +122,8 @@ def run(a) -> int:
         post.save(out / "posterior.safetensors")
     t_fit = time.perf_counter() - t0
     cands, labels = _candidates(a.candidates, full, fitted)
-    scores, nv = None, a.noise_var
+    scores = None
     if a.method in ("mi", "std"):
-        if nv != "observation":
-            try:
-                nv = float(nv)
-            except ValueError:
-                raise InputError(f"bad --noise-var '{a.noise_var}'", fix="give 'observation' or a number >= 0") from None
-            if nv < 0:
-                raise InputError(f"--noise-var must be >= 0, got {nv}")
         scores = score_views(post, cands, full.surface, estimator=a.estimator, seed=a.seed, noise_var=nv)
     rec = recommend(post, cands, a.k, method=a.method, radius=a.radius, surface=full.surface, seed=a.seed,
                     scores=scores, offset=len(fitted))

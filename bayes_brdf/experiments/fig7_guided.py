@@ -25,9 +25,9 @@ from pathlib import Path
 
 import torch
 
-from ..errors import InputError
 from ..guidance.acquisition import Evaluation, SyntheticCapture, guided_acquisition
 from ..guidance.recommend import low_discrepancy
+from ..guidance.scores import parse_noise_var
 from ..models.material import per_texel
 from ..render.views import collocated_views, hemisphere_directions, light_stage_views
 from .common import SURFACE, line_plot, prepare, write_json
@@ -81,26 +81,13 @@ def run_setting(cfg, kind: str, seed: int, out: Path | None = None, progress: bo
                                particles=int(cfg["particles"]), seed=seed, initial_indices=init_idx,
                                evaluation=ev, progress=progress,
                                out=None if out is None else out / f"{kind}_{method}_seed{seed}",
-                               score_kw={"estimator": cfg["estimator"], "noise_var": _noise_var(cfg["noise_var"])})
+                               score_kw={"estimator": cfg["estimator"], "noise_var": cfg["noise_var"]})
         res[method] = [{"views": rec["views"], **{k: rec["metrics"][k] for k in ("novel_error", "mean_image_std")},
                         "param_error": rec["metrics"].get("param_error")} for rec in r.rounds]
     return res
 
 
-def _noise_var(v):
-    """A score noise variance: a number >= 0 or ``"observation"`` (the model's photo noise)."""
-    if v == "observation":
-        return v
-    try:
-        x = float(v)
-    except (TypeError, ValueError):
-        x = -1.0
-    if not x >= 0:
-        raise InputError(f"bad value '{v}' for setting 'noise_var'", fix="give a number >= 0 or 'observation'")
-    return x
-
-
-SETTING_TYPES = {"noise_var": _noise_var}
+SETTING_TYPES = {"noise_var": parse_noise_var}
 
 
 def _mean_curves(runs: list[dict]) -> dict:

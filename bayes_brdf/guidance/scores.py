@@ -24,7 +24,6 @@ import torch
 from torch import Tensor
 
 from ..errors import InputError
-from ..render.gbuffer import GBuffer
 from ..render.shade import shade_chunks
 from ..uncertainty import _CACHE, _particle_maps, _surface
 from .entropy import kde_entropy, noise_entropy
@@ -56,18 +55,19 @@ def counted_pixels(g, map_resolution, footprint: bool = True) -> Tensor:
     return g.mask
 
 
-def _gbuffer_blocks(candidates: list, surface, dtype, device, max_bytes: int | None = None):
-    """``(first index, G-buffer)`` over ``candidates``: one cached G-buffer when it fits the cache's budget
-    (a candidate set scored every round is built once), else blocks of at most ``max_bytes`` built one at a
-    time, so a large set (e.g. 500 cameras x 30 lights at 64^2, several GB) never sits in memory whole."""
-    max_bytes = _CACHE.max_bytes if max_bytes is None else max_bytes
-    per_view = max(GBuffer.bytes_per_view(v, dtype) for v in candidates)
-    if per_view * len(candidates) <= max_bytes:
-        yield 0, _CACHE.get(tuple(candidates), surface, dtype=dtype, device=device)
-        return
-    step = max(1, max_bytes // (4 * per_view))
-    for b0 in range(0, len(candidates), step):
-        yield b0, GBuffer.build(candidates[b0:b0 + step], surface, dtype=dtype, device=device)
+def parse_noise_var(value) -> "float | str":
+    """A score's noise variance as given by a user (number, numeric string or ``"observation"``), checked:
+    ``"observation"`` or a float >= 0. One-line error otherwise."""
+    if value == "observation":
+        return value
+    fix = "give a number >= 0 or 'observation'"
+    try:
+        x = float(value)
+    except (TypeError, ValueError):
+        raise InputError(f"unknown noise_var '{value}'", fix=fix) from None
+    if not x >= 0:
+        raise InputError(f"noise_var must be >= 0, got {value}", fix=fix)
+    return x
 
 
 def observation_noise_var(post) -> float:
@@ -97,10 +97,9 @@ def score_views(post: "Posterior | SVBRDF", candidates: list, surface=None, *, e
         chunk_views: candidates rendered at once (memory bound); default about 16 M values per chunk.
     """
     t0 = time.perf_counter()
+    noise_var = parse_noise_var(noise_var)
     if noise_var == "observation":
         noise_var = observation_noise_var(post)
-    elif isinstance(noise_var, str):
-        raise InputError(f"unknown noise_var '{noise_var}'", fix="give a number or 'observation'")
     maps = _particle_maps(post)
     surface = _surface(post, surface)
     candidates = list(candidates)
@@ -125,7 +124,7 @@ def score_views(post: "Posterior | SVBRDF", candidates: list, surface=None, *, e
     kw = dict(nodes=nodes, noise_var=noise_var, min_bandwidth=min_bandwidth, backend=backend)
     P = 3 * H * W
     with torch.no_grad():
-        for b0, g in _gbuffer_blocks(candidates, surface, dt, dev):
+        for b0, g in _CACHE.blocks(candidates, surface, dtype=dt, device=dev):
             keep = counted_pixels(g, maps.albedo.shape[-2:], footprint)
             px[b0:b0 + g.num_views] = keep.reshape(g.num_views, -1).sum(1)
             for s, stop, r in shade_chunks(maps, g, chunk_views=chunk_views):   # r [n, v, 3, H, W]

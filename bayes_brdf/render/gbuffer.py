@@ -113,8 +113,7 @@ class GBuffer:
     def bytes_per_view(view: View, dtype=torch.float32) -> int:
         """Memory one view adds to a G-buffer (``dtype`` values; for planning chunks before building)."""
         h, w = view.resolution
-        L = len(view.lights)
-        return h * w * ((8 + 7 * L) * torch.empty((), dtype=dtype).element_size() + 1)
+        return h * w * ((8 + 7 * len(view.lights)) * torch.finfo(dtype).bits // 8 + 1)
 
     @property
     def resolution(self) -> tuple[int, int]:
@@ -210,3 +209,17 @@ class GBufferCache:
         while len(self._store) > self.max_entries or self.nbytes > self.max_bytes:
             self._store.popitem(last=False)
         return g
+
+    def blocks(self, views, surface, dtype=torch.float32, device=None):
+        """``(first index, G-buffer)`` covering ``views``: the whole set through the cache when it fits
+        ``max_bytes`` (a set used again, e.g. candidates scored every round, is built once), else blocks built
+        one at a time and not kept, so a set of several GB never sits in memory whole. A block holds a quarter
+        of the budget: :meth:`GBuffer.build` works in float64 and stacks, about 4x the result at its peak."""
+        views = list(views)
+        per_view = max(GBuffer.bytes_per_view(v, dtype) for v in views)
+        if per_view * len(views) <= self.max_bytes:
+            yield 0, self.get(views, surface, dtype=dtype, device=device)
+            return
+        step = max(1, self.max_bytes // (4 * per_view))
+        for b0 in range(0, len(views), step):
+            yield b0, GBuffer.build(views[b0:b0 + step], surface, dtype=dtype, device=device)
