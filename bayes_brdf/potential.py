@@ -118,6 +118,20 @@ class IntervalBijection:
         return self._t.log_abs_det_jacobian(u, x)
 
 
+def _clamp_inside(v: Tensor, support, margin: float) -> Tensor:
+    """``v`` clamped to the central ``1 - 2 margin`` of an interval support (other supports: unchanged)."""
+    from torch.distributions import constraints
+    base = support
+    while isinstance(base, constraints.independent):
+        base = base.base_constraint
+    if not isinstance(base, constraints.interval):
+        return v
+    lo = torch.as_tensor(base.lower_bound, dtype=v.dtype, device=v.device)
+    hi = torch.as_tensor(base.upper_bound, dtype=v.dtype, device=v.device)
+    w = hi - lo
+    return torch.maximum(torch.minimum(v, hi - margin * w), lo + margin * w)
+
+
 class Potential:
     """``U(z)`` with gradients for a Pyro ``model(*args, **kwargs)``.
 
@@ -227,15 +241,26 @@ class Potential:
             parts.append(s.transform.inv(x.to(self.dtype)).reshape(x.shape[0], -1))
         return torch.cat(parts, dim=1)
 
-    def init(self, n: int, seed: int = 0) -> Tensor:
-        """``[n, D]`` particles drawn from the prior (one model run under the particle plate)."""
+    def init(self, n: int, seed: int = 0, margin: float = 0.0) -> Tensor:
+        """``[n, D]`` particles drawn from the prior (one model run under the particle plate).
+
+        ``margin > 0`` clamps the draws of sites on an interval ``[lo, hi]`` to
+        ``[lo + margin (hi - lo), hi - margin (hi - lo)]``: a draw near a bound sits where the
+        sigmoid of the unconstrained coordinate saturates and the likelihood's gradient vanishes,
+        and such a particle can take tens of thousands of steps to come back (docs/samplers.md).
+        """
+        if not 0 <= margin < 0.5:
+            raise InputError(f"init margin must be in [0, 0.5), got {margin!r}")
         with torch.random.fork_rng(devices=[self.device] if self.device.type == "cuda" else []):
             torch.manual_seed(seed)
             tr = self._trace(self.model, n=n)
         vals = {}
         for s in self.sites:
             v = tr.nodes[s.name]["value"]
-            vals[s.name] = v.reshape(n, *s.shape) if v.shape[0] == n else v.expand(n, *v.shape[1:]).reshape(n, *s.shape)
+            v = v.reshape(n, *s.shape) if v.shape[0] == n else v.expand(n, *v.shape[1:]).reshape(n, *s.shape)
+            if margin > 0:
+                v = _clamp_inside(v, tr.nodes[s.name]["fn"].support, margin)
+            vals[s.name] = v
         return self.to_unconstrained(vals).detach()
 
     # ------------------------------------------------------------------ energies
@@ -318,7 +343,8 @@ class FunctionPotential:
         with torch.no_grad():
             return self.energy(z)
 
-    def init(self, n: int, seed: int = 0) -> Tensor:
+    def init(self, n: int, seed: int = 0, margin: float = 0.0) -> Tensor:
+        """``[n, D]`` standard-normal draws times ``init_std`` (``margin``: no bounds here, ignored)."""
         gen = torch.Generator().manual_seed(seed)
         return torch.randn(n, self.dim, generator=gen, dtype=self.dtype) * self.init_std
 

@@ -49,3 +49,13 @@ def float_list(s: str) -> list[float]:
         return [float(x) for x in s.split(",") if x.strip()]
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected comma-separated numbers, got '{s}'") from None
+
+
+def steps_arg(s: str) -> "int | str":
+    """``--steps``: a positive integer or ``auto``."""
+    if s.strip().lower() == "auto":
+        return "auto"
+    try:
+        return positive_int(s)
+    except argparse.ArgumentTypeError:
+        raise argparse.ArgumentTypeError(f"expected a positive integer or 'auto', got '{s}'") from None

@@ -20,7 +20,8 @@ def add_parser(sub):
                    help="extra configurations as comma-separated angles, one pixel each (default: none)")
     c.add_argument("--runs", type=positive_int, default=20, help="independent runs per sampler (default: %(default)s)")
     c.add_argument("--particles", type=positive_int, default=16, help="samples per run (default: %(default)s)")
-    c.add_argument("--steps", type=positive_int, default=500, help="steps per run (default: %(default)s)")
+    c.add_argument("--steps", type=positive_int, default=None,
+                   help="steps per run for every sampler (default: each sampler's preset)")
     c.add_argument("--samplers", default="spos,svgd,sgld,emcee,multistart_sgd,nuts",
                    help="comma-separated names or preset paths (default: %(default)s)")
     c.add_argument("--param", type=key_value, action="append", default=[], metavar="SAMPLER.KEY=VALUE",

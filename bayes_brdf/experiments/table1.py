@@ -121,16 +121,18 @@ def _errors(samples: torch.Tensor, q: dict) -> tuple[float, float]:
 
 
 def compare(setup: Table1Setup | None = None, samplers=SAMPLERS, *, runs: int = 20, particles: int = 16,
-            steps: int = 500, seed: int = 0, progress: bool = False, params: dict | None = None) -> dict:
+            steps: "int | dict | None" = None, seed: int = 0, progress: bool = False, params: dict | None = None) -> dict:
     """The table: ``{row: {"mse_mean", "mse_var", "seconds", "evaluations"}}`` plus ``"_truth"``.
 
-    ``params`` maps a sampler name to hyper-parameter overrides of its preset.
+    ``params`` maps a sampler name to hyper-parameter overrides of its preset. ``steps=None``: each sampler
+    runs its preset's steps (what a user gets; the budget is in the ``evaluations`` column); a number gives
+    every sampler the same budget; ``{sampler: steps}`` overrides some.
     """
     setup = setup or Table1Setup()
     q = quadrature(setup)
     model, data = problem(setup)
     out = {"_truth": {"mean": q["mean"].tolist(), "var": q["var"].tolist(), "setup": asdict(setup),
-                      "runs": runs, "particles": particles, "steps": steps}}
+                      "runs": runs, "particles": particles, "steps": steps if isinstance(steps, int) else "preset"}}
     gen = torch.Generator().manual_seed(seed)
     n_iid = max(runs, IID_RUNS)
     errs = [_errors(iid_draws(q, particles, gen), q) for _ in range(n_iid)]
@@ -140,6 +142,8 @@ def compare(setup: Table1Setup | None = None, samplers=SAMPLERS, *, runs: int = 
         over = dict(NUTS_TABLE1) if str(name) == "nuts" else {}
         over.update((params or {}).get(name, {}))
         smp, cfg = make_sampler(name, params=over)
+        n_steps = (steps.get(smp.name, cfg.steps) if isinstance(steps, dict) else
+                   cfg.steps if steps is None else steps)
         errs, secs, evals = [], 0.0, 0
         batched = smp.supports_groups   # all runs as independent groups of one batched run
         if smp.name == "nuts":
@@ -155,15 +159,16 @@ def compare(setup: Table1Setup | None = None, samplers=SAMPLERS, *, runs: int = 
         for k in range(0 if smp.name == "nuts" else 1 if batched else runs):
             pot = Potential(model, (data,))
             t0 = time.perf_counter()
-            res = run(smp, pot, particles=particles, steps=steps, seed=seed * 1000 + k, progress=progress,
-                      checkpoint_every=0, groups=runs if batched else 1)
+            res = run(smp, pot, particles=particles, steps=n_steps, seed=seed * 1000 + k, progress=progress,
+                      checkpoint_every=0, groups=runs if batched else 1, init_margin=cfg.init_margin)
             secs += time.perf_counter() - t0
             evals += pot.evaluations
             x = pot.to_constrained(res.z)
             xs = torch.cat([x["albedo"], x["roughness"]], 1).reshape(-1, particles, 2)
             errs += [_errors(xi, q) for xi in xs]
         out[smp.name] = {"mse_mean": sum(e[0] for e in errs) / runs, "mse_var": sum(e[1] for e in errs) / runs,
-                         "seconds": secs / runs, "evaluations": evals // runs, "batched": batched}
+                         "seconds": secs / runs, "evaluations": evals // runs, "batched": batched,
+                         "steps": n_steps if smp.name != "nuts" else None}
     return out
 
 

@@ -14,6 +14,7 @@
 """
 from __future__ import annotations
 
+import sys
 from dataclasses import dataclass, fields
 
 from ..errors import InputError
@@ -27,6 +28,10 @@ from .sgld import SGLD
 from .spos import SPOS
 from .svgd import SVGD
 
+#: old preset names: ``{old: (new, the one line printed when the old one is used)}``
+DEPRECATED_ALIASES = {"spos_maps": ("spos", "the sampler preset 'spos_maps' is deprecated: 'spos' is now calibrated "
+                                            "on per-texel maps as well (docs/samplers.md); using 'spos'")}
+
 SAMPLERS = {c.name: c for c in (SPOS, SVGD, SGLD, Emcee, MultistartSGD, NUTS)}
 
 
@@ -39,6 +44,7 @@ class RunConfig:
     checkpoint_every: int = 100
     minibatch_views: int = 0        # 0: all views every step
     minibatch_pixels: float = 1.0   # fraction of pixels per step (1: all)
+    init_margin: float = 0.0        # keep prior draws this fraction of each bounded range off its bounds
 
     def __post_init__(self):
         for k in ("particles", "steps"):
@@ -53,11 +59,15 @@ class RunConfig:
             raise InputError(f"run.minibatch_views must be an integer >= 0, got {self.minibatch_views!r}")
         if not isinstance(self.minibatch_pixels, (int, float)) or not 0 < self.minibatch_pixels <= 1:
             raise InputError(f"run.minibatch_pixels must be in (0, 1], got {self.minibatch_pixels!r}")
+        if isinstance(self.init_margin, bool) or not isinstance(self.init_margin, (int, float)) \
+                or not 0 <= self.init_margin < 0.5:
+            raise InputError(f"run.init_margin must be in [0, 0.5), got {self.init_margin!r}")
 
     def run_kwargs(self) -> dict:
         return {"particles": self.particles, "steps": self.steps, "checkpoint_every": self.checkpoint_every,
                 "minibatch_views": self.minibatch_views or None,
-                "minibatch_pixels": None if self.minibatch_pixels == 1 else float(self.minibatch_pixels)}
+                "minibatch_pixels": None if self.minibatch_pixels == 1 else float(self.minibatch_pixels),
+                "init_margin": float(self.init_margin)}
 
 
 def make_sampler(spec="spos", params: dict | None = None, run: dict | None = None) -> tuple[Sampler, RunConfig]:
@@ -75,7 +85,9 @@ def make_sampler(spec="spos", params: dict | None = None, run: dict | None = Non
     if isinstance(spec, dict):
         table = dict(spec)
     else:
-        name = str(spec)
+        name = DEPRECATED_ALIASES.get(str(spec), (str(spec),))[0]
+        if name != str(spec):
+            print(f"note: {DEPRECATED_ALIASES[str(spec)][1]}", file=sys.stderr)
         table = load_preset("samplers", name) if not (name in SAMPLERS and _no_preset(name)) else {"sampler": name}
     extra = set(table) - {"sampler", "params", "run", "description"}
     if extra:

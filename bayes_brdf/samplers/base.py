@@ -32,6 +32,9 @@ class Sampler:
 
     #: whether the sampler can run ``groups`` independent ensembles in one call
     supports_groups = True
+    #: whether every particle is a Markov chain (R-hat / ESS over particles are meaningful); not for
+    #: samplers whose particles settle on fixed points (SVGD, multi-start) or that keep one chain (NUTS)
+    chains = True
     num_steps: int = 1000  # set by the driver before ``init`` (annealing needs the horizon)
     groups: int = 1        # set by the driver: independent ensembles batched in one run
 
@@ -40,6 +43,10 @@ class Sampler:
 
     def step(self, state, t: int, potential, rng: torch.Generator):
         raise NotImplementedError
+
+    def particles_are_chains(self, dim: int) -> bool:
+        """Whether R-hat / ESS over the particles mean something for a ``dim``-dimensional problem."""
+        return self.chains
 
     def particles(self, state) -> Tensor:
         """The current samples ``[n, D]``."""

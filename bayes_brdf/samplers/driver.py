@@ -21,6 +21,7 @@ from torch import Tensor
 from tqdm.auto import tqdm
 
 from ..errors import InputError
+from .diagnostics import Diagnostics, diagnose
 
 FORMAT = "bayes-brdf-checkpoint/1"
 
@@ -41,6 +42,8 @@ class RunResult:
     evaluations: int              # particle evaluations of the potential
     resumed_from: int = 0
     info: dict = field(default_factory=dict)
+    diagnostics: Diagnostics | None = None
+    energies: Tensor | None = None   # [steps, n] per-particle energy at every step
 
 
 def _plain(x):
@@ -59,9 +62,12 @@ def _fill(template, plain, device):
     return plain
 
 
-def _signature(sampler, n, steps, seed, minibatch, groups) -> str:
-    return json.dumps({"sampler": sampler.name, "params": sampler.params(), "particles": n, "steps": steps,
-                       "seed": seed, "minibatch": minibatch, "groups": groups}, sort_keys=True, default=str)
+def _signature(sampler, n, steps, seed, minibatch, groups, init_margin=0.0) -> str:
+    d = {"sampler": sampler.name, "params": sampler.params(), "particles": n, "steps": steps,
+         "seed": seed, "minibatch": minibatch, "groups": groups}
+    if init_margin:
+        d["init_margin"] = init_margin
+    return json.dumps(d, sort_keys=True, default=str)
 
 
 def _save(path: Path, payload: dict):
@@ -86,7 +92,8 @@ def _load(path: Path, signature: str) -> dict:
 
 def run(sampler, potential, *, particles: int = 20, steps: int = 1000, seed: int = 0, z0: Tensor | None = None,
         checkpoint=None, checkpoint_every: int = 100, callbacks=(), progress: bool = True,
-        minibatch_views: int | None = None, minibatch_pixels: float | None = None, groups: int = 1) -> RunResult:
+        minibatch_views: int | None = None, minibatch_pixels: float | None = None, groups: int = 1,
+        init_margin: float = 0.0, max_steps: int | None = None) -> RunResult:
     """Run ``sampler`` on ``potential`` for ``steps`` steps; see the module docstring.
 
     ``callbacks`` are called as ``cb(t, state, info)`` after every step.
@@ -96,6 +103,11 @@ def run(sampler, potential, *, particles: int = 20, steps: int = 1000, seed: int
     ``groups`` runs that many independent ensembles of ``particles`` each in
     one batched run (``z`` is ``[groups * particles, D]``, group by group):
     the same statistics as ``groups`` separate runs, at the cost of one.
+    ``init_margin`` keeps the prior draws of bounded sites off their bounds
+    (:meth:`~bayes_brdf.potential.Potential.init`). ``max_steps > steps``
+    continues the run past ``steps``, half of ``steps`` at a time, until its
+    convergence checks pass or ``max_steps`` is reached (``steps="auto"`` in
+    :func:`bayes_brdf.infer` and the CLI); the annealing horizon stays ``steps``.
 
     Example:
         >>> from bayes_brdf.potential import FunctionPotential
@@ -109,16 +121,21 @@ def run(sampler, potential, *, particles: int = 20, steps: int = 1000, seed: int
     with torch.random.fork_rng(devices=[]):
         return _run(sampler, potential, particles=particles, steps=steps, seed=seed, z0=z0, checkpoint=checkpoint,
                     checkpoint_every=checkpoint_every, callbacks=callbacks, progress=progress,
-                    minibatch_views=minibatch_views, minibatch_pixels=minibatch_pixels, groups=groups)
+                    minibatch_views=minibatch_views, minibatch_pixels=minibatch_pixels, groups=groups,
+                    init_margin=init_margin, max_steps=max_steps)
 
 
 def _run(sampler, potential, *, particles: int = 20, steps: int = 1000, seed: int = 0, z0: Tensor | None = None,
         checkpoint=None, checkpoint_every: int = 100, callbacks=(), progress: bool = True,
-        minibatch_views: int | None = None, minibatch_pixels: float | None = None, groups: int = 1) -> RunResult:
+        minibatch_views: int | None = None, minibatch_pixels: float | None = None, groups: int = 1,
+        init_margin: float = 0.0, max_steps: int | None = None) -> RunResult:
     if not isinstance(steps, int) or steps < 1:
         raise InputError(f"steps must be a positive integer, got {steps!r}")
     if not isinstance(particles, int) or particles < 1:
         raise InputError(f"particles must be a positive integer, got {particles!r}")
+    if max_steps is not None and (isinstance(max_steps, bool) or not isinstance(max_steps, int) or max_steps < steps):
+        raise InputError(f"max_steps must be an integer >= steps ({steps}), got {max_steps!r}")
+    cap = max_steps or steps
     if isinstance(groups, bool) or not isinstance(groups, int) or groups < 1:
         raise InputError(f"groups must be a positive integer, got {groups!r}")
     if groups > 1 and not sampler.supports_groups:
@@ -128,42 +145,49 @@ def _run(sampler, potential, *, particles: int = 20, steps: int = 1000, seed: in
     if use_mb and not hasattr(potential, "minibatch"):
         raise InputError("minibatches need a model potential (its data must support minibatch)")
     sampler.num_steps, sampler.groups = steps, groups
-    signature = _signature(sampler, particles, steps, seed, mb, groups)
+    signature = _signature(sampler, particles, steps, seed, mb, groups, init_margin)
+    if cap > steps:
+        signature = signature[:-1] + f', "max_steps": {cap}}}'
+
     total = particles * groups
     ck_path = Path(checkpoint) if checkpoint is not None else None
 
     rng = torch.Generator(device="cpu").manual_seed(seed)
     torch.manual_seed(seed)
     if z0 is None:
-        z0 = potential.init(total, seed=seed)
+        z0 = potential.init(total, seed=seed, margin=init_margin) if init_margin else potential.init(total, seed=seed)
     elif tuple(z0.shape) != (total, potential.dim):
         raise InputError(f"initial particles have shape {tuple(z0.shape)}, expected {(total, potential.dim)}")
     state = sampler.init(z0, potential, rng)
-    trace = torch.full((steps,), float("nan"), dtype=torch.float64)
-    start, seconds0, evals0 = 0, 0.0, 0
+    trace = torch.full((cap,), float("nan"), dtype=torch.float64)
+    rec = _Recorder(cap, total, z0.shape[1])
+    start, seconds0, evals0, horizon = 0, 0.0, 0, steps
     if ck_path is not None and ck_path.exists() and sampler.exact_resume:
         ck = _load(ck_path, signature)
         state = _fill(state, ck["state"], z0.device)
         rng.set_state(ck["rng"])
         torch.set_rng_state(ck["global_rng"])
         start, trace, seconds0, evals0 = ck["t"], ck["trace"], ck["seconds"], ck["evaluations"]
+        horizon = int(ck.get("horizon", steps))
+        rec.load(ck.get("record"))
 
     def save(t, rngs=None):
         if ck_path is not None:
             r, gr = rngs or (rng.get_state(), torch.get_rng_state())
             ck_path.parent.mkdir(parents=True, exist_ok=True)
             _save(ck_path, {"format": FORMAT, "signature": signature, "t": t, "state": _plain(state),
-                            "rng": r, "global_rng": gr, "trace": trace,
+                            "rng": r, "global_rng": gr, "trace": trace, "record": rec.state(), "horizon": horizon,
                             "seconds": seconds0 + time.perf_counter() - t0,
                             "evaluations": evals0 + _evals(potential) - e0})
 
     t0, e0 = time.perf_counter(), _evals(potential)
-    bar = tqdm(total=steps, initial=start, desc=sampler.name, disable=not progress, leave=False)
+    bar = tqdm(total=horizon, initial=start, desc=sampler.name, disable=not progress, leave=False)
     done, snap = start, None   # steps whose result is in `state`; RNG states before the step in flight
-    try:
-        for t in range(start, steps):
+
+    def steps_until(end: int):
+        nonlocal state, done, snap
+        for t in range(done, end):
             snap = (rng.get_state(), torch.get_rng_state())
-            done = t
             pot = potential.minibatch(rng, **mb) if use_mb else potential
             new_state, info = sampler.step(state, t, pot, rng)
             z = sampler.particles(new_state)
@@ -176,22 +200,83 @@ def _run(sampler, potential, *, particles: int = 20, steps: int = 1000, seed: in
                          if hasattr(sampler, "step_size") else "check the model's energies"))
             if e is not None:
                 trace[t] = float(e.double().mean())
+            rec.add(t, e, z)
             state, done, snap = new_state, t + 1, None   # committed: a checkpoint now resumes after step t
             for cb in callbacks:
                 cb(t, state, info)
             bar.update(1)
             if e is not None and bar.n % 20 == 0:
                 bar.set_postfix(energy=f"{trace[t]:.4g}")
-            if ck_path is not None and checkpoint_every and (t + 1) % checkpoint_every == 0 and t + 1 < steps:
+            if ck_path is not None and checkpoint_every and (t + 1) % checkpoint_every == 0 and t + 1 < cap:
                 save(t + 1)
+
+    diag = None
+    try:
+        while True:
+            steps_until(horizon)
+            zf = sampler.particles(state).detach()
+            diag = diagnose_run(sampler, potential, rec, zf, horizon)
+            if horizon >= cap or diag.converged:
+                break
+            horizon = min(cap, horizon + max(1, steps // 2))   # not converged yet: another half run
+            bar.total = horizon
+            bar.refresh()
     except KeyboardInterrupt:
         save(done, snap)
         bar.close()
         raise
     bar.close()
-    save(steps)
-    return RunResult(sampler.particles(state).detach(), state, trace, steps,
-                     seconds0 + time.perf_counter() - t0, evals0 + _evals(potential) - e0, resumed_from=start)
+    save(done)
+    evals = evals0 + _evals(potential) - e0
+    return RunResult(zf, state, trace[:done], done, seconds0 + time.perf_counter() - t0, evals, resumed_from=start,
+                     diagnostics=diag, energies=rec.energies[:done])
+
+
+class _Recorder:
+    """Per-particle energies at every step and a fixed set of up to 32 coordinates every few steps: what :func:`~bayes_brdf.samplers.diagnostics.diagnose` reads (and checkpoints keep)."""
+
+    def __init__(self, steps: int, n: int, dim: int, track: int = 32):
+        self.energies = torch.full((steps, n), float("nan"), dtype=torch.float32)
+        self.idx = torch.linspace(0, dim - 1, min(dim, track)).round().long().unique()
+        self.stride = max(1, steps // 800)
+        self.tracked = torch.full((len(range(0, steps, self.stride)), n, len(self.idx)), float("nan"),
+                                  dtype=torch.float32)
+
+    def add(self, t: int, e, z: Tensor):
+        if e is not None and e.dim() == 1 and e.shape[0] == self.energies.shape[1]:
+            self.energies[t] = e.detach().float().cpu()
+        if t % self.stride == 0:
+            self.tracked[t // self.stride] = z.detach()[:, self.idx.to(z.device)].float().cpu()
+
+    def second_half(self, done: int) -> tuple[Tensor, Tensor | None]:
+        """Energies of steps ``[0, done)`` and the tracked rows of the second half ``[done / 2, done)``."""
+        rows = self.tracked[(done // 2 + self.stride - 1) // self.stride:(done + self.stride - 1) // self.stride]
+        return self.energies[:done], (rows if rows.shape[0] else None)
+
+    def state(self) -> dict:
+        return {"energies": self.energies, "tracked": self.tracked}
+
+    def load(self, st):
+        if isinstance(st, dict) and st["energies"].shape == self.energies.shape:
+            self.energies, self.tracked = st["energies"], st["tracked"]
+
+
+def diagnose_run(sampler, potential, rec: _Recorder, z: Tensor, steps: int) -> Diagnostics:
+    """The convergence checks of a finished run (one extra gradient evaluation, not counted in the budget)."""
+    grad = None
+    if hasattr(potential, "value_and_grad"):
+        count = getattr(potential, "_count", None)
+        before = count[0] if count is not None else None
+        try:
+            _, grad = potential.value_and_grad(z)
+        except Exception:  # noqa: BLE001  (a potential without gradients: the Stein checks are left out)
+            grad = None
+        if count is not None:
+            count[0] = before
+        elif hasattr(potential, "evaluations") and isinstance(potential.evaluations, int):
+            potential.evaluations -= z.shape[0]
+    energies, tracked = rec.second_half(steps)
+    return diagnose(energies, tracked, z, grad, chains=sampler.particles_are_chains(z.shape[1]), steps=steps)
 
 
 def _evals(potential) -> int:

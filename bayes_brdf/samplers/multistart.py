@@ -32,6 +32,7 @@ class MultistartSGD(Sampler):
     adam_eps: float = 1e-8
     jacobian: bool = False           # include the log-Jacobian (optimise in unconstrained density)
 
+    chains = False
     name = "multistart_sgd"
     State = MultistartState
 

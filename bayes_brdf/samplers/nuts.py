@@ -38,6 +38,7 @@ class NUTS(Sampler):
     max_tree_depth: int = 8
     adapt_mass_matrix: bool = True
 
+    chains = False
     name = "nuts"
     supports_groups = False
     State = NUTSState

@@ -38,6 +38,7 @@ class SVGD(Sampler):
     anneal_delta: float = 1.0
     anneal_fraction: float = 0.5
 
+    chains = False
     name = "svgd"
     State = SVGDState
 

@@ -1,8 +1,8 @@
 """The paper's Table 1 as a test: samplers on a 2-D posterior against dense quadrature.
 
-Runs every row (20 runs each, the presets' hyper-parameters) and asserts the
-paper's ranking: SPOS beats SGLD and multi-start SGD on both columns, and is
-within 1.5x the floor of 16 exact i.i.d. draws. Regenerate the table in the
+Runs every row (20 runs each, the presets' hyper-parameters and steps) and asserts the
+paper's ranking: SPOS beats SGLD and multi-start SGD on both columns, and the
+default SPOS is within 1.2x the floor of 16 exact i.i.d. draws. Regenerate the table in the
 docs with ``bayes-brdf compare --json docs/table1.json``.
 """
 import json
@@ -33,15 +33,15 @@ def test_problem_is_genuinely_ambiguous_and_quadrature_converged():
 
 @pytest.mark.slow
 def test_table1_ranking_and_floor():
-    table = compare(Table1Setup(), runs=20, particles=16, steps=500)
+    table = compare(Table1Setup(), runs=20, particles=16, steps={"emcee": 500})   # emcee: ~5 s a run
     print("\n" + markdown(table))
     spos, iid = table["spos"], table["iid"]
     for col in ("mse_mean", "mse_var"):
         assert spos[col] < table["sgld"][col], col
         assert spos[col] < table["multistart_sgd"][col], col
-        assert spos[col] <= 1.5 * iid[col], (col, spos[col], iid[col])
-    for name in ("spos", "svgd", "sgld", "multistart_sgd", "emcee"):
-        assert table[name]["evaluations"] == 16 * 500 or name == "emcee"
+        assert spos[col] <= 1.2 * iid[col], (col, spos[col], iid[col])
+    for name in ("spos", "svgd", "sgld", "multistart_sgd"):
+        assert table[name]["evaluations"] == 16 * table[name]["steps"]
     assert set(table) == {"_truth", "iid", "spos", "svgd", "sgld", "emcee", "multistart_sgd", "nuts"}
 
 

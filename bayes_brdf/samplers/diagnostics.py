@@ -1,0 +1,255 @@
+"""Convergence diagnostics from what every run already computes: per-particle energies and positions.
+
+:func:`diagnose` looks at the second half of a run (the driver records each
+particle's energy every step and a fixed set of tracked coordinates every few
+steps) and at the final particles, and returns :class:`Diagnostics`: named
+checks, each with its value, its threshold and whether it passed, plus one
+line for the user when a check fails.
+
+Checks (a check that does not apply to a sampler is left out):
+
+``rhat``
+    Rank-normalised split-R-hat (Vehtari et al. 2021) with every particle as a
+    chain, over the tracked coordinates: the median (``rhat_max``, the largest,
+    and ``rhat_energy``, that of the particles' energies, are reported). Above
+    1.2, the particles have not forgotten where they started. Stan's 1.01 asks
+    every chain to have explored the whole posterior; an ensemble that is
+    calibrated as a whole (the particles together, the truth checks of
+    docs/samplers.md) still has particles whose slowest coordinates have not
+    crossed it within half a run, so the limit is on the typical coordinate.
+    Samplers whose particles are chains (SPOS with beta <= 5, i.e. beyond a few
+    dimensions; SGLD; emcee); not SVGD or multi-start, whose particles settle on
+    fixed points, nor low-dimensional SPOS, which behaves like SVGD.
+``ess``
+    Bulk effective sample size of the same draws (smallest over the energy and
+    the tracked coordinates), reported, with ``ess_per_particle``; it fails
+    below one effective draw per particle.
+``energy_drift``
+    The mean energy of the last quarter of the run against the quarter before it,
+    as a z-score over the particles (paired): a stationary run gives about
+    N(0, 1); above 5, the energy is still falling.
+``behind``
+    The fraction of particles whose final energy exceeds the median by more than
+    ``max(10, 10 * 1.4826 * MAD)``: particles left far behind (prior draws
+    stuck where the likelihood is flat). Fails above 0.
+``stragglers``
+    The fraction of (particle, coordinate) entries more than 10 robust standard
+    deviations (1.4826 MAD) from the coordinate's median: single coordinates left
+    behind, which a particle's total energy hides in thousands of dimensions.
+    Reported only: with 20 particles the MAD of a coordinate is itself noisy, and
+    20 exact draws from the per-texel posterior of docs/samplers.md already give
+    0.004 (a run with stuck particles: 0.011).
+``stein_ratio``
+    With the final gradients: the mean over coordinates of
+    ``sum_i dU/dz_d (z_id - mean_d) / (n - 1)``, which is 1 under the target (Stein's
+    identity) and, for a Gaussian, the squared ratio of the particles' std to the
+    target's: below 0.5 the particles are collapsed, above 2 over-dispersed.
+``ksd``
+    The squared kernelised Stein discrepancy of the final particles (U-statistic, IMQ kernel
+    ``(1 + |x - y|^2 / h)^-1/2``, ``h`` the median squared distance), reported
+    for comparing runs on one problem (it has no universal threshold).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import torch
+from torch import Tensor
+
+RHAT_MAX = 1.2
+DRIFT_MAX = 5.0
+STEIN_RANGE = (0.5, 2.0)
+
+
+@dataclass
+class Diagnostics:
+    """Named checks ``{name: {"value", "threshold", "ok"}}`` (``ok`` is ``None`` for a reported-only value)."""
+
+    checks: dict = field(default_factory=dict)
+    steps: int = 0
+
+    @property
+    def converged(self) -> bool:
+        return all(c["ok"] is not False for c in self.checks.values())
+
+    @property
+    def failed(self) -> list[str]:
+        return [k for k, c in self.checks.items() if c["ok"] is False]
+
+    def message(self, fix: str | None = None) -> str:
+        """``""`` when every check passed, else one line: what failed and the remedy."""
+        if self.converged:
+            return ""
+        parts = []
+        for k in self.failed:
+            c = self.checks[k]
+            parts.append(f"{k} {_fmt(c['value'])} (limit {c['threshold']})")
+        fix = fix or f"rerun with more steps (e.g. --steps {2 * self.steps})"
+        return f"not converged: {', '.join(parts)}; {fix}"
+
+    def to_dict(self) -> dict:
+        return {"converged": self.converged, "failed": self.failed, "steps": self.steps,
+                "checks": {k: dict(v) for k, v in self.checks.items()}}
+
+
+def _fmt(v) -> str:
+    return f"{v:.3g}" if isinstance(v, float) else str(v)
+
+
+def _check(value, threshold, ok) -> dict:
+    return {"value": float(value) if value is not None else None, "threshold": threshold,
+            "ok": None if ok is None else bool(ok)}
+
+
+# ---------------------------------------------------------------- R-hat and ESS (chains x draws)
+def _rank_normal(x: Tensor) -> Tensor:
+    """Rank-normalise draws ``[chains, draws, K]`` jointly over chains and draws, per column."""
+    c, d, k = x.shape
+    flat = x.reshape(c * d, k)
+    ranks = flat.argsort(0).argsort(0).to(torch.float64) + 1
+    p = (ranks - 0.375) / (c * d + 0.25)
+    return torch.special.ndtri(p).reshape(c, d, k)
+
+
+def split_rhat(x: Tensor) -> Tensor:
+    """Rank-normalised split-R-hat per column of draws ``[chains, draws, K]`` -> ``[K]``.
+
+    Example:
+        >>> g = torch.Generator().manual_seed(0)
+        >>> bool(split_rhat(torch.randn(8, 200, 3, generator=g)).max() < 1.05)
+        True
+        >>> bool(split_rhat(torch.randn(8, 200, 1, generator=g) + torch.arange(8.)[:, None, None]) > 2)
+        True
+    """
+    x = x.to(torch.float64)
+    d = x.shape[1] // 2
+    xs = torch.cat([x[:, :d], x[:, d:2 * d]], 0)                 # split chains
+    z = _rank_normal(xs)
+    n = z.shape[1]
+    means = z.mean(1)                                            # [2c, K]
+    W = z.var(1, unbiased=True).mean(0)
+    B = n * means.var(0, unbiased=True)
+    var = (n - 1) / n * W + B / n
+    return torch.where(W > 0, (var / W).sqrt(), torch.full_like(W, math.inf))
+
+
+def ess_bulk(x: Tensor) -> Tensor:
+    """Bulk effective sample size per column of ``[chains, draws, K]`` (rank-normalised split chains,
+    Geyer's initial positive sequence), ``[K]``."""
+    x = x.to(torch.float64)
+    d = x.shape[1] // 2
+    z = _rank_normal(torch.cat([x[:, :d], x[:, d:2 * d]], 0))
+    m, n, k = z.shape
+    zc = z - z.mean(1, keepdim=True)
+    f = torch.fft.rfft(zc, n=2 * n, dim=1)
+    acov = torch.fft.irfft(f * f.conj(), n=2 * n, dim=1)[:, :n] / n          # [m, n, K]
+    W = z.var(1, unbiased=True).mean(0)
+    var = (n - 1) / n * W + z.mean(1).var(0, unbiased=True) if m > 1 else W
+    rho = 1 - (W - acov.mean(0)) / var                                      # [n, K]
+    rho[0] = 1.0
+    out = torch.empty(k, dtype=torch.float64)
+    for j in range(k):
+        r = rho[:, j]
+        pairs = r[: (n // 2) * 2].reshape(-1, 2).sum(1)                     # Geyer: P_t = rho_2t + rho_2t+1
+        pos = pairs > 0
+        cut = int(pos.to(torch.int64).cumprod(0).sum())
+        p = pairs[:cut]
+        if cut > 1:
+            p = torch.cummin(p, 0).values                                   # initial monotone sequence
+        tau = -1 + 2 * float(p.sum()) if cut else 1.0
+        out[j] = m * n / max(tau, 1.0 / math.log10(max(m * n, 10)))
+    return out
+
+
+# ---------------------------------------------------------------- particle checks
+def stragglers(z: Tensor, sds: float = 10.0) -> float:
+    """Fraction of entries of ``z [n, D]`` more than ``sds`` robust standard deviations from their column's median."""
+    med = z.median(0).values
+    dev = (z - med).abs()
+    mad = dev.median(0).values * 1.4826
+    scale = torch.where(mad > 0, mad, dev.max(0).values.clamp_min(1e-12))
+    return float((dev > sds * scale).to(torch.float64).mean())
+
+
+def behind(energies: Tensor) -> float:
+    """Fraction of particles whose energy exceeds the median by ``max(10, 10 * 1.4826 * MAD)``."""
+    e = energies.to(torch.float64)
+    med = e.median()
+    mad = (e - med).abs().median() * 1.4826
+    return float((e - med > max(10.0, 10.0 * float(mad))).to(torch.float64).mean())
+
+
+def stein_ratio(z: Tensor, grad: Tensor) -> float:
+    """Mean over coordinates of ``sum_i grad_id (z_id - mean_d) / (n - 1)`` (1 under the target: Stein's identity)."""
+    z, g = z.to(torch.float64), grad.to(torch.float64)
+    return float((g * (z - z.mean(0))).sum(0).mean() / (z.shape[0] - 1))
+
+
+def ksd(z: Tensor, grad: Tensor) -> float:
+    """Squared kernelised Stein discrepancy (unbiased U-statistic: about 0 for exact draws, may be slightly
+    negative) of particles ``z [n, D]`` with score ``-grad``, IMQ kernel."""
+    z, s = z.to(torch.float64), -grad.to(torch.float64)
+    n, D = z.shape
+    X, SX = z @ z.T, s @ z.T                                 # Gram matrices: no [n, n, D] tensor
+    sq = X.diagonal()
+    r2 = (sq[:, None] + sq[None, :] - 2 * X).clamp_min(0)
+    h = float(r2[r2 > 0].median()) if bool((r2 > 0).any()) else 1.0
+    base = 1 + r2 / h
+    k = base.pow(-0.5)
+    # k = (1 + r2/h)^-1/2; grad_x k = -(1/h) base^-3/2 (x - y); grad_y k = +(1/h) base^-3/2 (x - y)
+    gk = base.pow(-1.5) / h                                  # [n, n]
+    t1 = (s @ s.T) * k
+    sd = SX.diagonal()[:, None] - SX                         # s_i . (x_i - x_j)
+    sd2 = SX.T - SX.diagonal()[None, :]                      # s_j . (x_i - x_j)
+    t2 = gk * sd - gk * sd2                                  # s_i . grad_y k + s_j . grad_x k
+    tr = D * gk - 3 * r2 * base.pow(-2.5) / (h * h)          # trace of grad_x grad_y k
+    u = (t1 + t2 + tr).fill_diagonal_(0)
+    return float(u.sum() / (n * (n - 1)))
+
+
+# ---------------------------------------------------------------- all of them
+def diagnose(energies: Tensor, tracked: Tensor | None, z: Tensor, grad: Tensor | None, *, chains: bool,
+             steps: int) -> Diagnostics:
+    """Diagnostics of a run.
+
+    Args:
+        energies: per-particle energies of every step ``[T, n]`` (NaN where not recorded).
+        tracked: tracked coordinates ``[K, n, C]`` sampled evenly over the second half of the run, or ``None``.
+        z: the final particles ``[n, D]``.
+        grad: ``dU/dz`` at ``z`` ``[n, D]`` (the Stein checks), or ``None``.
+        chains: whether each particle is a Markov chain (R-hat and ESS apply).
+        steps: the run's length (for the remedy's step count).
+    """
+    checks = {}
+    e = energies.to(torch.float64)
+    ok_rows = torch.isfinite(e).all(1)
+    e = e[ok_rows]
+    T, n = e.shape if e.dim() == 2 else (0, 0)
+    if chains and T >= 8 and n >= 2:
+        half = e[T // 2:].T[:, :, None]                      # [n, draws, 1]
+        checks["rhat_energy"] = _check(float(split_rhat(half)[0]), None, None)
+        if tracked is not None and tracked.shape[0] >= 8:
+            draws = tracked.to(torch.float64).permute(1, 0, 2)
+            rh = split_rhat(draws)
+            rmed = float(rh.median())
+            checks["rhat"] = _check(rmed, RHAT_MAX, rmed <= RHAT_MAX)
+            checks["rhat_max"] = _check(float(rh.max()), None, None)
+            emin = float(ess_bulk(draws).min())
+            checks["ess"] = _check(emin, float(n), emin >= n)
+    if T >= 8 and n >= 2:
+        q = T // 4
+        d = e[T - 2 * q:T - q].mean(0) - e[T - q:].mean(0)    # > 0: still falling
+        sd = float(d.std(unbiased=True))
+        zsc = float(d.mean()) / (sd / math.sqrt(n)) if sd > 0 else 0.0
+        checks["energy_drift"] = _check(zsc, DRIFT_MAX, zsc <= DRIFT_MAX)
+    if n >= 2 and T:
+        b = behind(e[-1])
+        checks["behind"] = _check(b, 0.0, b <= 0.0)
+    if z.shape[0] >= 5:
+        checks["stragglers"] = _check(stragglers(z), None, None)
+    if grad is not None and z.shape[0] >= 2:
+        r = stein_ratio(z, grad)
+        checks["stein_ratio"] = _check(r, list(STEIN_RANGE), STEIN_RANGE[0] <= r <= STEIN_RANGE[1])
+        checks["ksd"] = _check(ksd(z, grad), None, None)
+    return Diagnostics(checks, steps)
