@@ -112,11 +112,11 @@ def predictive_cdf(post, views, images: Tensor, surface: PlanarSample | None = N
     render; ``F`` is its CDF at the observed value, exactly (no quantiles of
     samples). A pixel lies in the central ``p`` interval iff
     ``|F - 1/2| <= p/2``; calibrated predictions give uniform ``F``.
-    ``sigma``/``kind`` default to the posterior's model (``model.sigma``,
-    ``model.likelihood``). Returns ``(F, std, mean)``, each ``[V, H, W, 3]``.
+    ``sigma``/``kind`` default to the posterior's (``post.noise_sigma``: the model's
+    sigma or the inferred one; ``model.likelihood``). Returns ``(F, std, mean)``, each ``[V, H, W, 3]``.
     """
     model = getattr(post, "model", None)
-    sigma = float(sigma if sigma is not None else getattr(model, "sigma", 0) or 0)
+    sigma = float(sigma if sigma is not None else getattr(post, "noise_sigma", None) or 0)
     kind = kind or getattr(model, "likelihood", "laplace")
     if not sigma > 0:
         raise InputError("the predictive needs the likelihood's noise scale", fix="pass sigma= (image units)")

@@ -73,7 +73,7 @@ def parse_noise_var(value) -> "float | str":
 def observation_noise_var(post) -> float:
     """Variance of the model's observation noise ``W`` (Eq. 12): ``2 sigma^2`` for Laplace, ``sigma^2`` for Gaussian."""
     model = getattr(post, "model", None)
-    sigma = getattr(model, "sigma", None)
+    sigma = getattr(post, "noise_sigma", None)
     if sigma is None:
         raise InputError("noise_var='observation' needs the posterior's model (its sigma)",
                          fix="pass noise_var as a number (image units squared)")

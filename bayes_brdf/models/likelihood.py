@@ -5,6 +5,18 @@ whose ``log_prob`` calls the fused ``shade_loss`` (shading and the L1/L2 loss
 in one pass, analytic gradients), so a model's likelihood never materialises
 the ``[n, V, H, W, 3]`` renders. Its batch shape is the particle dimension of
 the maps. :func:`observe` is the one line a material model ends with.
+
+``sigma = "auto"``: the noise level is part of the model and integrated out.
+With ``N`` observed values, residual sum ``e(x) = sum w |y - R(x)|`` and the
+scale-invariant (Jeffreys) prior ``p(sigma) ∝ 1 / sigma``, the Laplace
+likelihood marginalised over sigma is ``∫ (2 sigma)^-N exp(-e / sigma) dsigma / sigma
+= Γ(N) (2 e)^-N``, which equals, up to a constant, the likelihood at the
+profile value ``sigma_hat(x) = e(x) / N``; the Gaussian case likewise with
+``sigma_hat^2 = sum w (y - R)^2 / N``. So every sampler sees the exact marginal
+posterior of the maps (no extra dimension to mix: with ``N`` in the tens of
+thousands, sigma's own posterior is 0.5 % wide), and sigma given the maps is
+``InvGamma(N, e(x))`` (Laplace), mean ``e / (N - 1)``. ``sigma_floor`` bounds
+the prior below (noiseless synthetic renders would otherwise drive sigma to 0).
 """
 from __future__ import annotations
 
@@ -21,6 +33,17 @@ from ..render.shade import shade, shade_loss
 from .data import ModelData
 
 KINDS = ("laplace", "gaussian")
+#: the lower bound of the noise prior under ``sigma = "auto"`` (image units: a quarter of an 8-bit step)
+SIGMA_FLOOR = 1e-3
+
+
+def check_sigma(sigma):
+    """One-line error unless ``sigma`` is a positive number or ``"auto"``."""
+    if sigma == "auto":
+        return
+    if isinstance(sigma, bool) or not isinstance(sigma, (int, float)) or not sigma > 0:
+        raise InputError(f"sigma must be a positive number or \"auto\", got {sigma!r}",
+                         fix="sigma_err is the noise scale in image units, e.g. 0.01; \"auto\" infers it")
 
 
 class RenderedImages(TorchDistribution):
@@ -40,13 +63,14 @@ class RenderedImages(TorchDistribution):
     arg_constraints = {}
     support = constraints.real
 
-    def __init__(self, maps: SVBRDF, data: ModelData, sigma: float = 0.01, kind: str = "laplace",
-                 backend: str = "auto", validate_args=None):
+    def __init__(self, maps: SVBRDF, data: ModelData, sigma: "float | str" = 0.01, kind: str = "laplace",
+                 backend: str = "auto", validate_args=None, sigma_floor: float = SIGMA_FLOOR):
         if kind not in KINDS:
             raise InputError(f"unknown likelihood '{kind}'", fix=f"use one of {', '.join(KINDS)}")
-        if not sigma > 0:
-            raise InputError(f"sigma must be > 0, got {sigma}", fix="sigma_err is the noise scale in image units, e.g. 0.01")
-        self.maps, self.data, self.sigma, self.kind, self.backend = maps, data, float(sigma), kind, backend
+        check_sigma(sigma)
+        self.maps, self.data, self.kind, self.backend = maps, data, kind, backend
+        self.sigma = sigma if sigma == "auto" else float(sigma)
+        self.sigma_floor = float(sigma_floor)
         n = maps.num_particles
         super().__init__(torch.Size([] if n is None else [n]), data.images.shape, validate_args=False)
 
@@ -64,8 +88,32 @@ class RenderedImages(TorchDistribution):
         per = math.log(2 * self.sigma) if self.kind == "laplace" else 0.5 * math.log(2 * math.pi * self.sigma ** 2)
         return 3 * self.data.weight.sum() * per
 
+    def residual(self, value) -> tuple[torch.Tensor, torch.Tensor]:
+        """``(e [n], N)``: the weighted residual sum (``|y - R|``, or ``(y - R)^2`` for Gaussian) and the count
+        of observed values it sums over."""
+        d = self.data
+        e = shade_loss(self.maps, d.gbuffer, value, d.weight, kind="l1" if self.kind == "laplace" else "l2",
+                       backend=self.backend)
+        return e, 3 * d.weight.sum()
+
+    def sigma_hat(self, value) -> torch.Tensor:
+        """The noise level the residuals show, per particle ``[n]`` (the profile value, floored)."""
+        e, N = self.residual(value)
+        return (e / N).clamp_min(self.sigma_floor) if self.kind == "laplace" else \
+            (e / N).clamp_min(self.sigma_floor ** 2).sqrt()
+
     def log_prob(self, value):
         d = self.data
+        if self.sigma == "auto":
+            e, N = self.residual(value)
+            if self.kind == "laplace":
+                s = (e / N).clamp_min(self.sigma_floor)
+                lp = -(N * torch.log(2 * s) + e / s)
+            else:
+                s2 = (e / N).clamp_min(self.sigma_floor ** 2)
+                lp = -(0.5 * N * torch.log(2 * math.pi * s2) + e / (2 * s2))
+            lp = lp * d.scale
+            return lp if self.maps.num_particles is not None else lp[0]
         if self.kind == "laplace":
             e = shade_loss(self.maps, d.gbuffer, value, d.weight / self.sigma, kind="l1", backend=self.backend)
         else:
@@ -82,8 +130,9 @@ class RenderedImages(TorchDistribution):
     def sample(self, sample_shape=torch.Size()):
         with torch.no_grad():
             mu = self.mean_images().expand(torch.Size(sample_shape) + self.batch_shape + self.event_shape)
+            sig = self.sigma if self.sigma != "auto" else float(self.sigma_hat(self.data.images).mean())
             noise = (torch.distributions.Laplace if self.kind == "laplace" else torch.distributions.Normal)(
-                torch.zeros_like(mu), torch.full_like(mu, self.sigma)).sample()
+                torch.zeros_like(mu), torch.full_like(mu, sig)).sample()
             w = self.data.weight[..., None] > 0
             return torch.where(w, mu + noise, mu)
 
@@ -105,8 +154,8 @@ class _Expanded(TorchDistribution):
         return self.base.sample().expand(torch.Size(sample_shape) + self.batch_shape + self.event_shape)
 
 
-def observe(data: ModelData, maps: SVBRDF, *, sigma: float = 0.01, kind: str = "laplace", name: str = "images",
-            backend: str = "auto"):
+def observe(data: ModelData, maps: SVBRDF, *, sigma: "float | str" = 0.01, kind: str = "laplace",
+            name: str = "images", backend: str = "auto"):
     """Condition ``maps`` on the observed images of ``data`` (Eq. 2): the last line of a material model.
 
     Example:

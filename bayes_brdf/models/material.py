@@ -23,7 +23,7 @@ from ..errors import InputError
 from ..render.maps import SVBRDF
 from . import priors as P
 from .data import ModelData
-from .likelihood import KINDS, observe
+from .likelihood import KINDS, RenderedImages, check_sigma, observe
 
 MAPS = ("albedo", "roughness", "specular", "normal")
 
@@ -36,7 +36,7 @@ class MaterialModel:
     roughness_range: tuple = (0.05, 1.0)
     specular: object = 0.04                            # a fixed value / map, or "infer"
     prior: object = field(default_factory=P.uniform)   # a Prior, or {site: Prior}
-    sigma: float = 0.01
+    sigma: object = 0.01                               # the noise scale (image units), or "auto" (inferred)
     likelihood: str = "laplace"
     backend: str = "auto"
 
@@ -48,8 +48,7 @@ class MaterialModel:
         lo, hi = self.roughness_range
         if not 0 < lo < hi <= 1:
             raise InputError(f"roughness_range must satisfy 0 < low < high <= 1, got {self.roughness_range}")
-        if not self.sigma > 0:
-            raise InputError(f"sigma must be > 0, got {self.sigma}", fix="sigma_err is in image units, e.g. 0.01")
+        check_sigma(self.sigma)
         if self.likelihood not in KINDS:
             raise InputError(f"unknown likelihood '{self.likelihood}'", fix=f"use one of {', '.join(KINDS)}")
         if isinstance(self.specular, str) and self.specular != "infer":
@@ -83,6 +82,15 @@ class MaterialModel:
     def __call__(self, data: ModelData):
         values = self.sample_sites(data)
         observe(data, self.maps(values), sigma=self.sigma, kind=self.likelihood, backend=self.backend)
+
+    def noise_sigma(self, data: ModelData, values: dict) -> Tensor:
+        """The noise scale per particle ``[n]`` for site values ``{site: [n, ...]}``: the fixed ``sigma``, or
+        under ``sigma = "auto"`` the level the residuals show (the mode of sigma given the maps)."""
+        n = next(iter(values.values())).shape[0]
+        if self.sigma != "auto":
+            return torch.full((n,), float(self.sigma), dtype=data.dtype, device=data.device)
+        with torch.no_grad():
+            return RenderedImages(self.maps(values), data, "auto", self.likelihood, self.backend).sigma_hat(data.images)
 
     def _fixed(self, value, channels: int, like: Tensor) -> Tensor:
         """A fixed map as a tensor, made once per dtype/device: the renderer caches the geometry
