@@ -68,7 +68,7 @@ def run(out, *, progress: bool = False, log=print, **overrides) -> Path:
 
     # 2. fit
     t = time.perf_counter()
-    post = infer(per_texel(R), obs, "spos_maps", seed=seed, particles=int(cfg["particles"]),
+    post = infer(per_texel(R), obs, "spos", seed=seed, particles=int(cfg["particles"]),
                  steps=int(cfg["steps"]), progress=progress)
     times["fit"] = time.perf_counter() - t
     post.save(out / "fit" / "posterior.safetensors")

@@ -26,3 +26,8 @@ class InputError(ValueError):
             msg = f"{msg}; {fix}"
         super().__init__(" ".join(msg.split()))  # one line, always
         self.problem, self.where, self.fix = problem, where, fix
+
+
+class ConvergenceWarning(UserWarning):
+    """A sampler run whose convergence checks failed (:mod:`bayes_brdf.samplers.diagnostics`): the
+    posterior may not be trustworthy yet; the message names the checks and the remedy."""

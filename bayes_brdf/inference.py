@@ -3,11 +3,12 @@ from __future__ import annotations
 
 import os
 import sys
+import warnings
 from typing import Callable
 
 import torch
 
-from .errors import InputError
+from .errors import ConvergenceWarning, InputError
 from .models.data import ModelData
 from .models.material import MaterialModel, from_preset
 from .observations import Observations
@@ -16,6 +17,10 @@ from .potential import Potential
 from .presets import load_preset
 from .samplers import make_sampler
 from .samplers.driver import run
+
+
+#: ``steps="auto"`` runs at most this many times the preset's steps
+AUTO_STEPS_CAP = 4
 
 
 def resolve_model(model):
@@ -30,9 +35,11 @@ def resolve_model(model):
 
 
 def infer(model: "Callable | str | dict", observations: "Observations | ModelData", sampler: "str | dict | object" = "spos",
-          *, seed: int = 0, particles: int | None = None, steps: int | None = None, params: dict | None = None,
+          *, seed: int = 0, particles: int | None = None, steps: "int | str | None" = None,
+          params: dict | None = None,
           checkpoint: "str | os.PathLike | None" = None, progress: bool | None = None, dtype=torch.float32,
-          device: "str | torch.device | None" = None, callbacks=(), z0: "torch.Tensor | None" = None) -> Posterior:
+          device: "str | torch.device | None" = None, callbacks=(), z0: "torch.Tensor | None" = None,
+          map_steps: int | None = None) -> Posterior:
     """Sample the posterior of ``model`` given ``observations`` with ``sampler``.
 
     Args:
@@ -42,13 +49,19 @@ def infer(model: "Callable | str | dict", observations: "Observations | ModelDat
         sampler: a name, a preset path (``samplers/*.toml``), a table or a :class:`Sampler`.
         seed: same seed, same result.
         particles: override the preset's particle count.
-        steps: override the preset's step count.
+        steps: override the preset's step count; ``"auto"``: the preset's, then half as many again until
+            the convergence checks pass, at most four times the preset's (:data:`AUTO_STEPS_CAP`).
         params: override the preset's hyper-parameters.
         checkpoint: a file to checkpoint to and resume from.
         progress: show a progress bar (default: when stderr is a terminal).
         device: where to run; by default the observations' device.
         z0: starting particles ``[n, D]`` in unconstrained space (e.g. a previous posterior's ``z``, to
             warm-start after adding views); by default prior draws.
+        map_steps: Adam steps refining the MAP from the best particle (Eq. 7; 0: the best particle;
+            default ``min(300, steps)``: no longer than the run itself).
+
+    The run's convergence checks land in ``post.diagnostics``; when one fails a
+    :class:`~bayes_brdf.errors.ConvergenceWarning` says which and what to do.
 
     Example:
         >>> import bayes_brdf as bb
@@ -68,12 +81,18 @@ def infer(model: "Callable | str | dict", observations: "Observations | ModelDat
     else:
         raise InputError(f"observations must be Observations, got {type(observations).__name__}",
                          fix="bb.io.load_capture(path).observations")
+    auto = steps == "auto"
+    if isinstance(steps, str) and not auto:
+        raise InputError(f"steps must be a positive integer or \"auto\", got {steps!r}")
     smp, cfg = make_sampler(sampler, params=params,
-                            run={k: v for k, v in (("particles", particles), ("steps", steps)) if v is not None})
+                            run={k: v for k, v in (("particles", particles), ("steps", None if auto else steps))
+                                 if v is not None})
     pot = Potential(model, (data,))
     if progress is None:
         progress = sys.stderr.isatty()
     kw = cfg.run_kwargs()
+    if auto:
+        kw["max_steps"] = AUTO_STEPS_CAP * kw["steps"]
     if z0 is not None:
         z0 = torch.as_tensor(z0, dtype=dtype, device=data.device)
         if z0.dim() != 2 or z0.shape[1] != pot.dim:
@@ -87,5 +106,16 @@ def infer(model: "Callable | str | dict", observations: "Observations | ModelDat
             "seconds": res.seconds, "evaluations": res.evaluations, "steps": res.steps,
             "model": model.to_dict() if isinstance(model, MaterialModel) else getattr(model, "__name__", str(model)),
             "observations": observations.meta if isinstance(observations, Observations) else {},
-            "surface": {"size": data.observations.surface.size, "grid": data.observations.surface.grid}}
-    return Posterior(pot.to_constrained(res.z), energies, z=res.z, meta=meta, potential=pot, model=model)
+            "surface": {"size": data.observations.surface.size, "grid": data.observations.surface.grid},
+            "diagnostics": res.diagnostics.to_dict() if res.diagnostics is not None else None}
+    if isinstance(model, MaterialModel) and model.sigma == "auto":
+        s = model.noise_sigma(data, pot.to_constrained(res.z))
+        meta["noise_sigma"] = float(s.mean())
+    post = Posterior(pot.to_constrained(res.z), energies, z=res.z, meta=meta, potential=pot, model=model)
+    if map_steps is None:
+        map_steps = min(300, res.steps)
+    if map_steps:
+        post.refine_map(map_steps)
+    if res.diagnostics is not None and not res.diagnostics.converged:
+        warnings.warn(res.diagnostics.message(f"rerun with steps={2 * res.steps}"), ConvergenceWarning, stacklevel=2)
+    return post

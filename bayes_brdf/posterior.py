@@ -2,7 +2,11 @@
 
 ``mean``/``std`` are Eq. (9) (``std`` is the sample standard deviation over the
 ``n`` particles, with Bessel's correction); ``map`` is Eq. (7): the particle of
-highest target ``f(x)`` (lowest energy), optionally refined with Adam.
+highest target ``f(x)`` (lowest energy), refined with Adam. ``bb.infer`` refines
+it once (:meth:`Posterior.refine_map`) and the refined MAP travels in the file:
+a particle is a posterior *sample*, noisy texel by texel, and shown as "the MAP"
+its poorly constrained texels look like outliers. ``diagnostics`` holds the
+convergence checks of the run (:mod:`bayes_brdf.samplers.diagnostics`).
 Files are safetensors (tensors) with the metadata as JSON inside: no pickle.
 """
 from __future__ import annotations
@@ -40,7 +44,7 @@ class Posterior:
     """
 
     def __init__(self, particles: dict[str, Tensor], energies: Tensor, *, z: Tensor | None = None,
-                 meta: dict | None = None, potential=None, model=None):
+                 meta: dict | None = None, potential=None, model=None, map_values: dict | None = None):
         if not particles:
             raise InputError("a posterior needs at least one site")
         ns = {v.shape[0] for v in particles.values()}
@@ -51,6 +55,20 @@ class Posterior:
         self.z = None if z is None else z.detach()
         self.meta = dict(meta or {})
         self.potential, self.model = potential, model
+        self.map_values = None if map_values is None else {k: v.detach() for k, v in map_values.items()}
+
+    @property
+    def noise_sigma(self) -> float | None:
+        """The likelihood's noise scale: the model's ``sigma``, or the inferred one under ``sigma = "auto"``."""
+        if "noise_sigma" in self.meta:
+            return float(self.meta["noise_sigma"])
+        s = getattr(self.model, "sigma", None)
+        return float(s) if isinstance(s, (int, float)) and not isinstance(s, bool) else None
+
+    @property
+    def diagnostics(self) -> dict | None:
+        """The run's convergence checks (``{"converged", "failed", "checks"}``), or ``None``."""
+        return self.meta.get("diagnostics")
 
     # ------------------------------------------------------------------ summaries
     @property
@@ -90,9 +108,17 @@ class Posterior:
         """Index of the particle with the highest target ``f(x)``."""
         return int(torch.argmin(self.energies))
 
-    def map(self, refine_steps: int = 0, lr: float = 0.01) -> dict[str, Tensor]:
-        """MAP estimate (Eq. 7): the best particle, then ``refine_steps`` of Adam on ``-log f`` (optional)."""
+    def map(self, refine_steps: int | None = None, lr: float = 0.01) -> dict[str, Tensor]:
+        """MAP estimate (Eq. 7): the best particle, then ``refine_steps`` of Adam on ``-log f``.
+
+        ``refine_steps=None``: the refined MAP stored by :meth:`refine_map` (``bb.infer`` does it) when
+        there is one, else the best particle; ``0``: the best particle itself.
+        """
         i = self.best()
+        if refine_steps is None:
+            if self.map_values is not None:
+                return dict(self.map_values)
+            refine_steps = 0
         if refine_steps <= 0:
             return {k: v[i] for k, v in self.particles.items()}
         if self.potential is None or self.z is None:
@@ -106,6 +132,18 @@ class Posterior:
             z.grad = g
             opt.step()
         return {k: v[0] for k, v in self.potential.to_constrained(z.detach()).items()}
+
+    def refine_map(self, steps: int = 300, lr: float = 0.02) -> dict[str, Tensor]:
+        """Refine the MAP (Eq. 7) with ``steps`` of Adam from the best particle, keep it (it is saved with the
+        posterior) and return it; a refinement that ends worse than the best particle keeps the particle."""
+        vals = self.map(refine_steps=steps, lr=lr)
+        with torch.no_grad():
+            z = self.potential.to_unconstrained({k: v[None] for k, v in vals.items()})
+            e = float(self.potential.energy(z, jacobian=False)[0])
+            e0 = float(self.potential.energy(self.z[self.best()][None], jacobian=False)[0])
+        self.map_values = vals if e <= e0 else self.map(refine_steps=0)
+        self.meta["map"] = {"refine_steps": steps, "lr": lr, "energy": min(e, e0), "best_particle_energy": e0}
+        return dict(self.map_values)
 
     def maps(self, which="mean"):
         """The model's SVBRDF for ``which`` = ``"mean"``, ``"map"``, a particle index, or ``"all"`` (``[n, ...]`` maps)."""
@@ -127,6 +165,8 @@ class Posterior:
         t["energies"] = self.energies.contiguous().cpu()
         if self.z is not None:
             t["z"] = self.z.contiguous().cpu()
+        for k, v in (self.map_values or {}).items():
+            t[f"map/{k}"] = v.contiguous().cpu()
         save_file(t, str(path), metadata={"format": FORMAT, "meta": json.dumps(self.meta, default=str)})
         return path
 
@@ -146,8 +186,9 @@ class Posterior:
         if md.get("format") != FORMAT:
             raise InputError("not a bayes-brdf posterior file", where=path)
         parts = {k[5:]: v for k, v in t.items() if k.startswith("site/")}
+        mp = {k[4:]: v for k, v in t.items() if k.startswith("map/")} or None
         meta = json.loads(md.get("meta", "{}"))
-        return cls(parts, t["energies"], z=t.get("z"), meta=meta, model=_model_from_meta(meta))
+        return cls(parts, t["energies"], z=t.get("z"), meta=meta, model=_model_from_meta(meta), map_values=mp)
 
     def to_arviz(self):
         """An ``arviz.InferenceData`` with one chain whose draws are the particles (and ``energy`` in sample_stats)."""

@@ -62,8 +62,9 @@ def test_checkpoint_resume_through_infer_is_exact(tmp_path):
 
 def test_map_refinement_lowers_the_energy_and_maps():
     model = bb.models.per_texel(8, albedo="gray")
-    post = bb.infer(model, OBS, "spos", steps=40, seed=0, progress=False)
+    post = bb.infer(model, OBS, "spos", steps=40, seed=0, progress=False, map_steps=0)
     best = post.map()
+    assert all(torch.equal(best[k], post.particles[k][post.best()]) for k in best)
     refined = post.map(refine_steps=100, lr=0.02)
     pot = post.potential
     e0 = pot.energy(pot.to_unconstrained({k: v[None] for k, v in best.items()}), jacobian=False)
@@ -74,6 +75,22 @@ def test_map_refinement_lowers_the_energy_and_maps():
     assert post.maps("all").albedo.shape == (20, 3, 8, 8)
     with pytest.raises(InputError, match="loaded from a file"):
         Posterior(post.particles, post.energies).map(refine_steps=5)
+
+
+def test_infer_stores_the_refined_map_and_it_travels_in_the_file(tmp_path):
+    import warnings
+    model = bb.models.per_texel(8, albedo="gray")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        post = bb.infer(model, OBS, "spos", steps=40, seed=0, progress=False)
+    pot = post.potential
+    energy = lambda vals: float(pot.energy(pot.to_unconstrained({k: v[None] for k, v in vals.items()}),  # noqa: E731
+                                           jacobian=False))
+    assert energy(post.map()) < energy(post.map(refine_steps=0))      # Eq. 7: refined from the best particle
+    assert post.meta["map"]["refine_steps"] == 40          # min(300, steps)
+    back = Posterior.load(post.save(tmp_path / "p.safetensors"))
+    assert all(torch.equal(back.map()[k], post.map()[k]) for k in post.map())
+    assert back.diagnostics == post.diagnostics and "converged" in back.diagnostics
 
 
 def test_arviz_export():

@@ -16,7 +16,7 @@ import time
 from pathlib import Path
 
 from .common import int_list
-from .infer import add_sampling_args, sample, write_posterior
+from .infer import add_sampling_args, convergence_note, sample, write_posterior
 
 
 def add_parser(sub):
@@ -122,12 +122,13 @@ def run(a) -> int:
                "resolution": a.resolution, "model": post.meta["model"], "sampler": post.meta["sampler"],
                "params": post.meta["params"], "run": post.meta["run"], "seed": a.seed,
                "mean_param_std": mean_std, "best_energy": float(post.energies.min()),
-               "device": str(torch.device(a.device))}
+               "device": str(torch.device(a.device)), "diagnostics": post.diagnostics}
     if held_idx:
         t = time.perf_counter()
         held = full.subset(held_idx)
         held.meta["indices"] = held_idx
-        summary["model_sigma"] = float(getattr(post.model, "sigma", float("nan")))
+        summary["model_sigma"] = getattr(post.model, "sigma", None)
+        summary["noise_sigma"] = post.noise_sigma
         summary["heldout"] = heldout_report(post, held, out, fitted_noise(post, obs))
         times["heldout"] = time.perf_counter() - t
     times["total"] = time.perf_counter() - t0
@@ -138,12 +139,16 @@ def run(a) -> int:
         h = summary["heldout"]
         msg += (f"; held-out views {held_idx}: std vs |error| Pearson {h['pearson']:.2f}, Spearman "
                 f"{h['spearman']:.2f}; coverage 50% {h['coverage']['50']:.2f}, 90% {h['coverage']['90']:.2f} "
-                f"(with the fitted noise {h['fitted_sigma']:.3f} instead of sigma {summary['model_sigma']}: "
+                f"(with the fitted noise {h['fitted_sigma']:.3f} instead of sigma {summary['noise_sigma']:.3g}: "
                 f"{h['coverage_with_fitted_sigma']['50']:.2f}, {h['coverage_with_fitted_sigma']['90']:.2f})")
     print(msg + f" -> {out}/ (summary.json, map/, mean/, std/, heldout/)")
     hint = sigma_hint(summary)
     if hint:
         print(hint)
+    note = convergence_note(post)
+    if note:
+        import sys
+        print(note, file=sys.stderr)
     return 0
 
 
@@ -151,7 +156,7 @@ def sigma_hint(summary: dict) -> str:
     """A line advising a larger model sigma when the fitted photos' residuals are over twice its value
     (the predictive intervals are then too narrow: real photos differ from the model by more than sigma)."""
     fitted, model = summary.get("heldout", {}).get("fitted_sigma"), summary.get("model_sigma")
-    if not fitted or not model or fitted <= 2 * model:
+    if not fitted or not isinstance(model, (int, float)) or fitted <= 2 * model:
         return ""
     return (f"note: the fitted photos differ from the MAP render by a Laplace scale of {fitted:.3f}, "
             f"{fitted / model:.1f}x the model's sigma {model:g}, so the intervals are too narrow; "

@@ -4,9 +4,12 @@ from __future__ import annotations
 import json
 import sys
 import time
+import warnings
 from pathlib import Path
 
-from .common import int_list, key_value, positive_int
+from ..errors import ConvergenceWarning
+
+from .common import int_list, key_value, positive_int, steps_arg
 
 
 def add_sampling_args(f, default_out: str):
@@ -14,13 +17,15 @@ def add_sampling_args(f, default_out: str):
     f.add_argument("capture", help="capture folder (or its parameters.json / optim.json / observations.json)")
     f.add_argument("--model", default="per_texel", help="model preset name or TOML path (default: %(default)s)")
     f.add_argument("--sampler", default=None,
-                   help="sampler preset name or TOML path (default: spos_maps for per_texel models, else spos)")
+                   help="sampler preset name or TOML path (default: spos, calibrated from 2-D to per-texel maps)")
     f.add_argument("--views", type=int_list, default=None, help="comma-separated view indices to fit (default: all)")
     f.add_argument("--resolution", type=positive_int, default=128,
                    help="resample the photos to this resolution; a per_texel model uses as many texels "
                         "(default: %(default)s)")
     f.add_argument("--particles", type=positive_int, default=None, help="override the preset's particle count")
-    f.add_argument("--steps", type=positive_int, default=None, help="override the preset's step count")
+    f.add_argument("--steps", type=steps_arg, default=None,
+                   help="override the preset's step count, or 'auto': run until the convergence checks pass "
+                        "(at most 4x the preset's)")
     f.add_argument("--param", type=key_value, action="append", default=[], metavar="KEY=VALUE",
                    help="override a sampler hyper-parameter, e.g. step_size=0.02 (repeatable)")
     f.add_argument("--model-param", type=key_value, action="append", default=[], metavar="KEY=VALUE",
@@ -50,11 +55,24 @@ def sample(a, obs, out: Path):
     table.update(dict(a.model_param))
     if table.get("model") == "per_texel" and "resolution" not in dict(a.model_param):
         table["resolution"] = a.resolution
-    sampler = a.sampler or ("spos_maps" if table.get("model") == "per_texel" else "spos")
+    sampler = a.sampler or "spos"
     out.mkdir(parents=True, exist_ok=True)
-    return infer(table, obs, sampler, seed=a.seed, particles=a.particles, steps=a.steps,
-                 params=dict(a.param) or None, checkpoint=out / "checkpoint.pt", progress=sys.stderr.isatty(),
-                 device=a.device)
+    with warnings.catch_warnings():         # the CLI says it in its own terms (convergence_note)
+        warnings.simplefilter("ignore", ConvergenceWarning)
+        return infer(table, obs, sampler, seed=a.seed, particles=a.particles, steps=a.steps,
+                     params=dict(a.param) or None, checkpoint=out / "checkpoint.pt", progress=sys.stderr.isatty(),
+                     device=a.device)
+
+
+def convergence_note(post) -> str:
+    """One line for stderr when the run's convergence checks failed (``""`` when they passed)."""
+    from ..samplers.diagnostics import Diagnostics
+
+    d = post.diagnostics
+    if not d or d.get("converged", True):
+        return ""
+    steps = int(d.get("steps") or post.meta.get("steps") or 0)
+    return "warning: " + Diagnostics(d["checks"], steps).message(f"rerun with --steps {2 * steps} (and a new --out)")
 
 
 def write_posterior(post, out: Path) -> dict:
@@ -89,8 +107,12 @@ def run(a) -> int:
                "sampler": post.meta["sampler"], "params": post.meta["params"], "run": post.meta["run"],
                "seed": a.seed, "seconds": post.meta["seconds"], "wall_seconds": secs,
                "evaluations": post.meta["evaluations"], "mean_std": mean_std,
-               "best_energy": float(post.energies.min()), "device": str(torch.device(a.device))}
+               "best_energy": float(post.energies.min()), "device": str(torch.device(a.device)),
+               "diagnostics": post.diagnostics}
     (out / "summary.json").write_text(json.dumps(summary, indent=2, default=str))
     print(f"{post} from {len(obs)} views in {post.meta['seconds']:.1f} s -> {out}/ "
           f"(posterior.safetensors, mean/, map/, std/, summary.json)")
+    note = convergence_note(post)
+    if note:
+        print(note, file=sys.stderr)
     return 0

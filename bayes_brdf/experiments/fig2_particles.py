@@ -3,7 +3,7 @@
 Setup (the paper's Sec. 4, "Ablation of particle count"): the procedural ``material`` (wood) at
 ``resolution^2`` texels, observed under ``views`` collocated flash views (20 in the paper; rectified cameras,
 zenith within 60 degrees, Sobol directions), noiseless. Normals and specular albedo are known (the truth's);
-RGB albedo and roughness are inferred per texel with ``spos_maps`` (step ``step_size``, ``steps`` steps; the
+RGB albedo and roughness are inferred per texel with ``FIGURE_SAMPLER`` (the former ``spos_maps``) (step ``step_size``, ``steps`` steps; the
 same for every n), started from prior draws kept ``init_margin`` of each range away from its bounds (plain
 prior draws near the bounds sit where the logit saturates and, with the preconditioner shared by the
 particles, stay there for thousands of steps: they inflate the mean albedo std 5-6x, see
@@ -23,7 +23,7 @@ import time
 import numpy as np
 import torch
 
-from .common import figure_grid, line_plot, prepare, synthetic, write_json
+from .common import FIGURE_SAMPLER, figure_grid, line_plot, prepare, synthetic, write_json
 from ..errors import InputError
 from ..inference import infer
 from ..models.data import ModelData
@@ -71,7 +71,7 @@ def run(out, preset: str = "small", seed: int = 0, progress: bool = False, **ove
     t_all = time.perf_counter()
     for n in ns:
         t = time.perf_counter()
-        post = infer(model, obs, "spos_maps", seed=seed, steps=int(cfg["steps"]), params=params,
+        post = infer(model, obs, FIGURE_SAMPLER, map_steps=0, seed=seed, steps=int(cfg["steps"]), params=params,
                      z0=start(model, obs, n, seed, float(cfg["init_margin"])), progress=progress)
         std_r[n], std_a[n] = post.std("roughness")[0], post.std("albedo")
         rows[n] = {"seconds": time.perf_counter() - t,

@@ -11,7 +11,7 @@ of ``counts`` (3, 10, 100 in the paper):
   ``<= sqrt(count)``: 1 x 3, 2 x 5, 10 x 10); stands in for the paper's second (environment) lighting.
 
 Normals and specular albedo are known (the truth's); RGB albedo and roughness are inferred per texel with
-``spos_maps`` (``particles`` particles, ``steps`` steps of size ``step_size``), started from prior draws kept
+``FIGURE_SAMPLER`` (the former ``spos_maps``) (``particles`` particles, ``steps`` steps of size ``step_size``), started from prior draws kept
 ``init_margin`` off the bounds. Two independent runs (sampler seeds ``2 seed`` and ``2 seed + 1``) give the
 two point estimates (the MAP particle of each, Eq. 7, not refined) and their L1 roughness error maps; the
 std map is Eq. 9 of run 1 (``particles`` particles).
@@ -34,7 +34,7 @@ import time
 import numpy as np
 import torch
 
-from .common import SURFACE, figure_grid, line_plot, prepare, synthetic, write_json
+from .common import FIGURE_SAMPLER, SURFACE, figure_grid, line_plot, prepare, synthetic, write_json
 from .fig2_particles import _ints, start
 from ..errors import InputError
 from ..inference import infer
@@ -108,7 +108,7 @@ def run(out, preset: str = "small", seed: int = 0, progress: bool = False, **ove
             ests, errs, stds, row = [], [], [], {"runs": []}
             for s in seeds:
                 t = time.perf_counter()
-                post = infer(model, obs, "spos_maps", seed=s, steps=int(cfg["steps"]), params=params,
+                post = infer(model, obs, FIGURE_SAMPLER, map_steps=0, seed=s, steps=int(cfg["steps"]), params=params,
                              particles=int(cfg["particles"]),
                              z0=start(model, obs, int(cfg["particles"]), s, float(cfg["init_margin"])),
                              progress=progress)

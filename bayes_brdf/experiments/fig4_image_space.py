@@ -3,7 +3,7 @@
 Setup (the paper's Sec. 4, "Image-space uncertainty"): a procedural SVBRDF (``material``, wood by default) at
 ``resolution^2`` texels is observed under ``views`` collocated flash views (rectified cameras, zenith within
 60 degrees, Sobol directions seeded by ``seed``); normals and specular albedo are known (the truth's), albedo (RGB)
-and roughness are inferred per texel with ``spos_maps`` (``particles`` particles, ``steps`` steps, started from prior
+and roughness are inferred per texel with ``FIGURE_SAMPLER`` (the former ``spos_maps``) (``particles`` particles, ``steps`` steps, started from prior
 draws kept off the parameter bounds). Four point estimates of the same posterior:
 
 * (b1) Adam on the MAP objective ``-log f(x)`` (the potential's energy without the Jacobian, Eq. 3/7) from high
@@ -30,7 +30,7 @@ import time
 import numpy as np
 import torch
 
-from .common import SURFACE, figure_grid, prepare, save_figure, synthetic, write_json
+from .common import FIGURE_SAMPLER, SURFACE, figure_grid, prepare, save_figure, synthetic, write_json
 from ..inference import infer
 from ..models.data import ModelData
 from ..models.material import per_texel
@@ -199,7 +199,7 @@ def run(out, preset: str = "small", seed: int = 0, progress: bool = False, **ove
     lo, hi = model.roughness_range
     x0["albedo"] = x0["albedo"].clamp(INIT_MARGIN, 1 - INIT_MARGIN)
     x0["roughness"] = x0["roughness"].clamp(lo + INIT_MARGIN * (hi - lo), hi - INIT_MARGIN * (hi - lo))
-    post = infer(model, obs, "spos_maps", seed=seed, steps=int(cfg["steps"]), z0=pot0.to_unconstrained(x0),
+    post = infer(model, obs, FIGURE_SAMPLER, map_steps=0, seed=seed, steps=int(cfg["steps"]), z0=pot0.to_unconstrained(x0),
                  progress=progress)
     t_sample = time.perf_counter() - t0
 

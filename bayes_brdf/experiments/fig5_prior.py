@@ -4,7 +4,7 @@ Setup (the paper's Sec. 4, "Prior awareness"): a homogeneous smooth material (al
 roughness ``roughness`` = 0.12, specular F0 0.04, flat) observed under ``views`` = 10 collocated flash views
 (rectified cameras at the map resolution, Sobol directions within 60 degrees zenith, seeded by ``seed``), with
 optional Laplace noise ``noise_sigma``. Albedo (RGB) and roughness are inferred *per texel* (``resolution^2``
-texels, ``spos_maps``) twice: with the default uniform prior on roughness, and with the low-roughness prior
+texels, ``FIGURE_SAMPLER`` (the former ``spos_maps``)) twice: with the default uniform prior on roughness, and with the low-roughness prior
 ``Prior.gaussian(prior_mean, prior_std)`` (the paper: a Gaussian around the ground-truth roughness).
 
 Why this is ambiguous without the prior: a roughness-0.12 lobe is a few degrees wide, so a texel only sees
@@ -28,7 +28,7 @@ import time
 import numpy as np
 import torch
 
-from .common import SURFACE, figure_grid, prepare, save_figure, write_json
+from .common import FIGURE_SAMPLER, SURFACE, figure_grid, prepare, save_figure, write_json
 from ..guidance.acquisition import SyntheticCapture
 from ..inference import infer
 from ..models.data import ModelData
@@ -61,13 +61,13 @@ DETERMINED = 0.05
 
 
 def _sample(model, obs, cfg, seed, progress):
-    """``spos_maps`` from prior draws kept ``INIT_MARGIN`` away from the bounds (where the logit saturates)."""
+    """``FIGURE_SAMPLER`` (the former ``spos_maps``) from prior draws kept ``INIT_MARGIN`` away from the bounds (where the logit saturates)."""
     pot = Potential(model, (ModelData.from_observations(obs),))
     x0 = pot.to_constrained(pot.init(int(cfg["particles"]), seed=seed))
     lo, hi = model.roughness_range
     x0["albedo"] = x0["albedo"].clamp(INIT_MARGIN, 1 - INIT_MARGIN)
     x0["roughness"] = x0["roughness"].clamp(lo + INIT_MARGIN * (hi - lo), hi - INIT_MARGIN * (hi - lo))
-    return infer(model, obs, "spos_maps", seed=seed, steps=int(cfg["steps"]), z0=pot.to_unconstrained(x0),
+    return infer(model, obs, FIGURE_SAMPLER, map_steps=0, seed=seed, steps=int(cfg["steps"]), z0=pot.to_unconstrained(x0),
                  progress=progress)
 
 

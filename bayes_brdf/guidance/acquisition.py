@@ -152,11 +152,12 @@ def _capture(capture, views, surface) -> Observations:
 
 
 def guided_acquisition(model: "Callable | str", initial: Observations, candidates: list, capture: Callable, *,
-                       rounds: int = 3, k: "int | list[int]" = 5, method: str = "mi", radius: float = 0.0, sampler="spos_maps",
+                       rounds: int = 3, k: "int | list[int]" = 5, method: str = "mi", radius: float = 0.0, sampler="spos",
                        particles: int | None = None, steps: int | None = None, params: dict | None = None,
                        seed: int = 0, warm_start: bool = True, initial_indices: "list[int] | tuple" = (),
                        evaluation: Callable | None = None, out: "str | Path | None" = None, progress: bool = False,
-                       score_kw: dict | None = None, on_round: Callable | None = None) -> AcquisitionResult:
+                       score_kw: dict | None = None, on_round: Callable | None = None,
+                       map_steps: int | None = None) -> AcquisitionResult:
     """Algorithm 1 with ``k`` views per round (hypersphere exclusion of ``radius`` degrees between them).
 
     Args:
@@ -172,6 +173,7 @@ def guided_acquisition(model: "Callable | str", initial: Observations, candidate
         evaluation: ``evaluation(post, surface) -> dict`` of metrics per round (e.g. :class:`Evaluation`).
         out: folder for per-round files; rerunning resumes after the last finished round.
         on_round: called as ``on_round(record, posterior)`` after every round (progress reporting).
+        map_steps: the MAP refinement of every round's posterior (see :func:`bayes_brdf.infer`).
     """
     from ..inference import infer
     candidates = list(candidates)
@@ -192,7 +194,7 @@ def guided_acquisition(model: "Callable | str", initial: Observations, candidate
         else:
             t0 = time.perf_counter()
             post = infer(model, obs, sampler, seed=seed + r, particles=particles, steps=steps, params=params,
-                         progress=progress, z0=z if warm_start else None)
+                         progress=progress, z0=z if warm_start else None, map_steps=map_steps)
             t_fit = time.perf_counter() - t0
             metrics = evaluation(post, surface) if evaluation is not None else {}
             t1 = time.perf_counter()
