@@ -62,11 +62,13 @@ def _fill(template, plain, device):
     return plain
 
 
-def _signature(sampler, n, steps, seed, minibatch, groups, init_margin=0.0) -> str:
+def _signature(sampler, n, steps, seed, minibatch, groups, init_margin=0.0, max_steps=None) -> str:
     d = {"sampler": sampler.name, "params": sampler.params(), "particles": n, "steps": steps,
          "seed": seed, "minibatch": minibatch, "groups": groups}
     if init_margin:
         d["init_margin"] = init_margin
+    if max_steps and max_steps > steps:
+        d["max_steps"] = max_steps
     return json.dumps(d, sort_keys=True, default=str)
 
 
@@ -145,10 +147,7 @@ def _run(sampler, potential, *, particles: int = 20, steps: int = 1000, seed: in
     if use_mb and not hasattr(potential, "minibatch"):
         raise InputError("minibatches need a model potential (its data must support minibatch)")
     sampler.num_steps, sampler.groups = steps, groups
-    signature = _signature(sampler, particles, steps, seed, mb, groups, init_margin)
-    if cap > steps:
-        signature = signature[:-1] + f', "max_steps": {cap}}}'
-
+    signature = _signature(sampler, particles, steps, seed, mb, groups, init_margin, cap)
     total = particles * groups
     ck_path = Path(checkpoint) if checkpoint is not None else None
 
