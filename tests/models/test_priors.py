@@ -43,7 +43,8 @@ def test_smoothness_closed_forms():
     ({"model": "nope"}, "unknown model 'nope'"),
     ({"model": "homogeneous", "prior": {"kind": "cauchy"}}, "unknown prior kind 'cauchy'"),
     ({"model": "homogeneous", "prior": {"kind": "gaussian", "mean": 0.1}}, "needs a mean and a std"),
-    ({"model": "homogeneous", "sigma": -1}, "sigma must be > 0"),
+    ({"model": "homogeneous", "sigma": -1}, "sigma must be a positive number or \"auto\""),
+    ({"model": "homogeneous", "sigma": "big"}, "sigma must be a positive number or \"auto\""),
     ({"model": "homogeneous", "roughness_range": [0.5, 0.1]}, "roughness_range must satisfy"),
     ({"model": "per_texel", "smoothness": {"kind": "tv", "wieght": 1}}, "unknown key(s) ['wieght']"),
 ])
