@@ -12,6 +12,7 @@ only bound the radiance from below.
 from __future__ import annotations
 
 import json
+import sys
 import time
 from pathlib import Path
 
@@ -147,7 +148,6 @@ def run(a) -> int:
         print(hint)
     note = convergence_note(post)
     if note:
-        import sys
         print(note, file=sys.stderr)
     return 0
 
