@@ -56,6 +56,8 @@ class GBuffer:
     uv: Tensor
     align_corners: bool
     aligned: bool
+    texel: Tensor | None = None          # gathered pixels of aligned views: flat texel index [V, H, W] ...
+    texel_grid: tuple | None = None      # ... into a map of this (H, W) (see :meth:`gather`)
 
     @classmethod
     def build(cls, views: list[View], surface: PlanarSample, *, dtype=torch.float32, device=None) -> "GBuffer":
@@ -139,6 +141,36 @@ class GBuffer:
         t = torch.as_tensor(idx, dtype=torch.long, device=self.position.device)
         return replace(self, **{f.name: getattr(self, f.name)[t] for f in fields(self)
                                 if isinstance(getattr(self, f.name), Tensor)})
+
+    def gather(self, pixels: Tensor) -> "GBuffer":
+        """The pixels where ``pixels [V, H, W]`` is True, as one view of ``1 x K`` pixels (raster order).
+
+        For shading a sparse set of pixels (e.g. the saturated ones) without
+        shading whole views. Pixels of aligned views keep their texel's flat
+        index (``texel``), so a map of the views' resolution is read by index,
+        not interpolated; otherwise textures are looked up at each pixel's ``uv``.
+        """
+        pixels = torch.as_tensor(pixels, dtype=torch.bool, device=self.position.device)
+        if tuple(pixels.shape) != (self.num_views, *self.resolution):
+            raise InputError(f"pixel selection has shape {tuple(pixels.shape)}, expected "
+                             f"{(self.num_views, *self.resolution)}")
+        v, r, c = pixels.nonzero(as_tuple=True)
+
+        def pick(t: Tensor) -> Tensor:
+            if t.dim() >= 4 and tuple(t.shape[-2:]) == self.resolution:      # [V, ..., H, W]
+                out = t[v, ..., r, c] if t.dim() > 3 else t[v, r, c]
+                return out.movedim(0, -1)[None, ..., None, :]              # [1, ..., 1, K]
+            if t.dim() == 4 and t.shape[-1] == 2:                          # uv [V, H, W, 2]
+                return t[v, r, c][None, None]                              # [1, 1, K, 2]
+            return t[v, r, c][None, None]                                  # mask [V, H, W] -> [1, 1, K]
+        src = self
+        if self.aligned and self.texel is None:          # a rectified view: pixel (r, c) shows texel r * W + c
+            h, w = self.resolution
+            idx = torch.arange(h * w, device=self.position.device).reshape(1, h, w).expand(self.num_views, h, w)
+            src = replace(self, texel=idx, texel_grid=(h, w))
+        out = {f.name: pick(getattr(src, f.name)).contiguous() for f in fields(src)
+               if isinstance(getattr(src, f.name), Tensor)}
+        return replace(src, aligned=False, **out)
 
     def texel_index(self, resolution) -> Tensor:
         """Footprint: flat index ``[V, H, W]`` of the nearest texel of an ``(R_h, R_w)`` map (-1 if invalid).

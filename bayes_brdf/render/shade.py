@@ -41,6 +41,9 @@ def lookup(tex: Tensor, g: GBuffer) -> Tensor:
     n, c, ht, wt = t.shape
     if (ht, wt) == (1, 1) or (g.aligned and (ht, wt) == g.resolution):
         return t[:, None]
+    if g.texel is not None and (ht, wt) == tuple(g.texel_grid):       # gathered pixels of aligned views
+        V, (h, w) = g.num_views, g.resolution
+        return t.flatten(-2).index_select(-1, g.texel.reshape(-1)).reshape(n, c, V, h, w).transpose(1, 2)
     V, (h, w) = g.num_views, g.resolution
     grid = g.uv.to(t.dtype).reshape(1, V * h, w, 2).expand(n, -1, -1, -1)
     s = F.grid_sample(t, grid, mode="bilinear", padding_mode="border", align_corners=g.align_corners)
