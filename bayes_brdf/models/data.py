@@ -14,15 +14,56 @@ _CACHE = GBufferCache()
 
 
 @dataclass
+class Censored:
+    """The saturated pixels of the observations, for a censored likelihood.
+
+    A photo clips at its maximum code, so where it saturated the radiance is at
+    least what was recorded: ``level [K, 3]`` is that lower bound per channel
+    (the recorded value: exact for a clipped channel, conservative for the
+    others and for a downsampled pixel that averages clipped and unclipped
+    photo pixels). ``gbuffer`` is their geometry as one ``1 x K`` view
+    (:meth:`GBuffer.gather`), ``view [K]`` the view each came from and
+    ``weight [K]`` 1, or 0 for pixels a minibatch leaves out.
+    """
+
+    gbuffer: GBuffer
+    level: Tensor
+    view: Tensor
+    weight: Tensor
+
+    @classmethod
+    def from_pixels(cls, g: GBuffer, images: Tensor, pixels: Tensor) -> "Censored | None":
+        if not bool(pixels.any()):
+            return None
+        v = pixels.nonzero(as_tuple=True)[0]
+        return cls(g.gather(pixels), images[pixels].contiguous(), v, torch.ones(len(v), dtype=images.dtype,
+                                                                               device=images.device))
+
+    @property
+    def count(self) -> int:
+        return int(self.weight.count_nonzero())
+
+    def views_index(self, idx: Tensor) -> "Censored | None":
+        """The censored pixels of views ``idx`` (renumbered as in the minibatch)."""
+        idx = idx.to(self.view.device)
+        keep = (self.view[:, None] == idx[None]).any(1)
+        if not bool(keep.any()):
+            return None
+        new = torch.searchsorted(idx, self.view[keep])
+        return Censored(self.gbuffer.gather(keep[None, None]), self.level[keep], new, self.weight[keep])
+
+
+@dataclass
 class ModelData:
     """Observed images with their geometry, ready for a model's likelihood.
 
     ``images [V, H, W, 3]`` linear radiance; ``weight [V, H, W]`` is 1 on
-    pixels that count and 0 on pixels that do not (outside the sample, masked
-    out, or saturated: a clipped pixel only bounds the radiance from below, so it
-    is left out rather than fitted); ``scale`` multiplies the log-likelihood
-    (``V / |batch|`` for a minibatch of views, ``1 / fraction`` for a pixel
-    subsample) so that stochastic gradients are unbiased.
+    pixels that are fitted and 0 on pixels that are not (outside the sample,
+    masked out, or saturated); ``censored`` holds the saturated pixels apart (a
+    clipped pixel only bounds the radiance from below: see :class:`Censored`);
+    ``scale`` multiplies the log-likelihood (``V / |batch|`` for a minibatch of
+    views, ``1 / fraction`` for a pixel subsample) so that stochastic gradients
+    are unbiased.
 
     Example:
         >>> from bayes_brdf.render.views import collocated_views
@@ -37,6 +78,7 @@ class ModelData:
     weight: Tensor
     observations: Observations
     scale: float = 1.0
+    censored: Censored | None = None
 
     @classmethod
     def from_observations(cls, obs: Observations, *, dtype=torch.float32, device=None) -> "ModelData":
@@ -48,15 +90,17 @@ class ModelData:
         w = g.mask.clone()
         if obs.mask is not None:
             w &= obs.mask.to(device)
+        sat = torch.zeros_like(w)
         if obs.saturated is not None:
-            w &= ~obs.saturated.to(device)
+            sat = w & obs.saturated.to(device)
+            w &= ~sat
         if not bool(w.any()):
             raise InputError("no usable pixel in the observations (all masked, saturated or off the sample)")
         imgs = obs.images.to(device=device, dtype=dtype)
-        if not bool(torch.isfinite(imgs[w]).all()):
+        if not bool(torch.isfinite(imgs[w | sat]).all()):
             raise InputError("the observed images contain NaN or infinite values on usable pixels",
                              fix="mask those pixels out (Observations.mask)")
-        return cls(g, imgs.contiguous(), w.to(dtype), obs)
+        return cls(g, imgs.contiguous(), w.to(dtype), obs, censored=Censored.from_pixels(g, imgs, sat))
 
     @property
     def num_views(self) -> int:
@@ -83,12 +127,17 @@ class ModelData:
                 raise InputError(f"minibatch views must be >= 1, got {views}")
             idx = torch.randperm(self.num_views, generator=generator)[:views].sort().values
             d = replace(d, gbuffer=d.gbuffer.views_index(idx), images=d.images[idx.to(d.device)],
-                        weight=d.weight[idx.to(d.device)])
+                        weight=d.weight[idx.to(d.device)],
+                        censored=None if d.censored is None else d.censored.views_index(idx))
             scale *= self.num_views / views
         if pixels is not None and pixels < 1.0:
             if not 0.0 < pixels:
                 raise InputError(f"minibatch pixel fraction must be in (0, 1], got {pixels}")
             keep = torch.rand(d.weight.shape, generator=generator) < pixels
             d = replace(d, weight=d.weight * keep.to(d.device, d.dtype))
+            if d.censored is not None:
+                c = d.censored
+                kc = torch.rand(c.weight.shape, generator=generator) < pixels
+                d = replace(d, censored=replace(c, weight=c.weight * kc.to(c.weight.device, c.weight.dtype)))
             scale /= pixels
         return replace(d, scale=scale)

@@ -17,6 +17,17 @@ posterior of the maps (no extra dimension to mix: with ``N`` in the tens of
 thousands, sigma's own posterior is 0.5 % wide), and sigma given the maps is
 ``InvGamma(N, e(x))`` (Laplace), mean ``e / (N - 1)``. ``sigma_floor`` bounds
 the prior below (noiseless synthetic renders would otherwise drive sigma to 0).
+
+``saturated = "censored"`` (the default): a pixel the photo clipped at
+``level`` (:class:`~bayes_brdf.models.data.Censored`) says only that the
+radiance plus noise reached the clip, so it contributes
+``log P(R + noise >= level)`` per channel: for Laplace noise
+``log(1/2) - t`` for ``t = (level - R) / sigma >= 0`` and ``log(1 - exp(t) / 2)``
+below; for Gaussian noise ``log Phi(-t)``. A clipped highlight then pulls a
+rendering that is too dim upwards and says nothing against one that is
+brighter. Under ``sigma = "auto"`` it is evaluated at the profile sigma of
+the unclipped pixels (the censored pixels are a few percent of the data).
+``saturated = "drop"`` leaves them out.
 """
 from __future__ import annotations
 
@@ -33,8 +44,56 @@ from ..render.shade import shade, shade_loss
 from .data import ModelData
 
 KINDS = ("laplace", "gaussian")
+SATURATED = ("censored", "drop")
 #: the lower bound of the noise prior under ``sigma = "auto"`` (image units: a quarter of an 8-bit step)
 SIGMA_FLOOR = 1e-3
+
+
+def censored_log_survival(t: torch.Tensor, kind: str) -> torch.Tensor:
+    """``log P(noise / sigma >= t)`` for standardised Laplace or Gaussian noise, elementwise and stable."""
+    if kind == "laplace":
+        a = -t.abs()
+        return torch.where(t >= 0, a - math.log(2.0), torch.log1p(-0.5 * torch.exp(a)))
+    return torch.special.log_ndtr(-t)
+
+
+class _CensoredSum(torch.autograd.Function):
+    """``sum_{k, c} w_k log P(noise >= level - R)`` per particle, with the derivative in closed form.
+
+    ``r [n, K, 3]`` renders, ``level [K, 3]``, ``sigma [n]``, ``w [K]`` -> ``[n]``. One pass for the value
+    and the derivative (``d log S / dt``, kept for backward) instead of a chain of autograd nodes: these
+    pixels are shaded apart from the fused loss, so their elementwise cost is what censoring adds per step.
+    """
+
+    @staticmethod
+    def forward(ctx, r, level, sigma, w, kind):
+        s = sigma.reshape(-1, 1, 1)
+        t = (level[None] - r).div_(s)
+        if kind == "laplace":
+            a = t.abs().neg_()
+            e = a.exp()                                                    # exp(-|t|)
+            val = torch.where(t >= 0, a.sub_(math.log(2.0)), torch.log1p(e * -0.5))
+            dlog = torch.where(t >= 0, torch.full_like(t, -1.0), e.mul(-0.5).div_(e.mul(-0.5).add_(1)))
+        else:
+            val = torch.special.log_ndtr(-t)
+            dlog = (-0.5 * t * t - 0.5 * math.log(2 * math.pi) - val).exp_().neg_()   # -phi(t) / Phi(-t)
+        ww = w[None, :, None]
+        ctx.save_for_backward(t, dlog, s, ww)
+        return (val * ww).sum((1, 2))
+
+    @staticmethod
+    def backward(ctx, g):
+        t, dlog, s, ww = ctx.saved_tensors
+        gt = dlog.mul_(ww).mul_(g.reshape(-1, 1, 1))                      # d out / d t
+        gr = gt.div(s).neg_() if ctx.needs_input_grad[0] else None      # t = (level - r) / s
+        gs = (gt * t).sum((1, 2)).div_(s.reshape(-1)).neg_() if ctx.needs_input_grad[2] else None
+        return gr, None, gs, None, None
+
+
+def check_saturated(saturated):
+    if saturated not in SATURATED:
+        raise InputError(f"saturated must be one of {', '.join(SATURATED)}, got {saturated!r}",
+                         fix="\"censored\" uses clipped pixels as lower bounds, \"drop\" leaves them out")
 
 
 def check_sigma(sigma):
@@ -55,20 +114,25 @@ class RenderedImages(TorchDistribution):
         sigma: the noise scale ``sigma_err`` in the images' units (Eq. 2).
         kind: ``"laplace"`` (the paper's L1 likelihood) or ``"gaussian"``.
         backend: shading backend (see :func:`bayes_brdf.render.shade.shade`).
+        saturated: ``"censored"`` (clipped pixels as lower bounds) or ``"drop"``.
 
     ``log_prob(y)`` is the exact normalised log-density summed over weighted
-    pixels: ``-sum w |y - R| / sigma - sum w log(2 sigma)`` for Laplace.
+    pixels: ``-sum w |y - R| / sigma - sum w log(2 sigma)`` for Laplace, plus
+    the censored term of the saturated pixels.
     """
 
     arg_constraints = {}
     support = constraints.real
 
     def __init__(self, maps: SVBRDF, data: ModelData, sigma: "float | str" = 0.01, kind: str = "laplace",
-                 backend: str = "auto", validate_args=None, sigma_floor: float = SIGMA_FLOOR):
+                 backend: str = "auto", validate_args=None, sigma_floor: float = SIGMA_FLOOR,
+                 saturated: str = "censored"):
         if kind not in KINDS:
             raise InputError(f"unknown likelihood '{kind}'", fix=f"use one of {', '.join(KINDS)}")
         check_sigma(sigma)
+        check_saturated(saturated)
         self.maps, self.data, self.kind, self.backend = maps, data, kind, backend
+        self.censored = data.censored if saturated == "censored" else None
         self.sigma = sigma if sigma == "auto" else float(sigma)
         self.sigma_floor = float(sigma_floor)
         n = maps.num_particles
@@ -102,6 +166,17 @@ class RenderedImages(TorchDistribution):
         return (e / N).clamp_min(self.sigma_floor) if self.kind == "laplace" else \
             (e / N).clamp_min(self.sigma_floor ** 2).sqrt()
 
+    def censored_log_prob(self, sigma) -> torch.Tensor:
+        """``[n]``: the sum over saturated pixels and channels of ``log P(R + noise >= level)`` at noise
+        scale ``sigma`` (a number or ``[n]``); 0 without saturated pixels."""
+        c = self.censored
+        n = self.maps.num_particles or 1
+        if c is None:
+            return torch.zeros(n, dtype=self.data.dtype, device=self.data.device)
+        r = shade(self.maps, c.gbuffer, backend=self.backend)[:, 0, 0]              # [n, K, 3]
+        s = torch.as_tensor(sigma, dtype=r.dtype, device=r.device).reshape(-1).expand(r.shape[0])
+        return _CensoredSum.apply(r, c.level.to(r), s, c.weight.to(r), self.kind)
+
     def log_prob(self, value):
         d = self.data
         if self.sigma == "auto":
@@ -111,15 +186,16 @@ class RenderedImages(TorchDistribution):
                 lp = -(N * torch.log(2 * s) + e / s)
             else:
                 s2 = (e / N).clamp_min(self.sigma_floor ** 2)
+                s = s2.sqrt()
                 lp = -(0.5 * N * torch.log(2 * math.pi * s2) + e / (2 * s2))
-            lp = lp * d.scale
+            lp = (lp + self.censored_log_prob(s)) * d.scale
             return lp if self.maps.num_particles is not None else lp[0]
         if self.kind == "laplace":
             e = shade_loss(self.maps, d.gbuffer, value, d.weight / self.sigma, kind="l1", backend=self.backend)
         else:
             e = shade_loss(self.maps, d.gbuffer, value, d.weight / (2 * self.sigma ** 2), kind="l2",
                            backend=self.backend)
-        lp = -(e + self._norm_const()) * d.scale
+        lp = (self.censored_log_prob(self.sigma) - e - self._norm_const()) * d.scale
         return lp if self.maps.num_particles is not None else lp[0]
 
     def mean_images(self):
@@ -155,7 +231,7 @@ class _Expanded(TorchDistribution):
 
 
 def observe(data: ModelData, maps: SVBRDF, *, sigma: "float | str" = 0.01, kind: str = "laplace",
-            name: str = "images", backend: str = "auto"):
+            name: str = "images", backend: str = "auto", saturated: str = "censored"):
     """Condition ``maps`` on the observed images of ``data`` (Eq. 2): the last line of a material model.
 
     Example:
@@ -169,4 +245,5 @@ def observe(data: ModelData, maps: SVBRDF, *, sigma: "float | str" = 0.01, kind:
     """
     if not isinstance(data, ModelData):
         raise InputError(f"observe() needs the ModelData the model was called with, got {type(data).__name__}")
-    return pyro.sample(name, RenderedImages(maps, data, sigma, kind, backend), obs=data.images)
+    return pyro.sample(name, RenderedImages(maps, data, sigma, kind, backend, saturated=saturated),
+                       obs=data.images)

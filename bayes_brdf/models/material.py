@@ -23,7 +23,7 @@ from ..errors import InputError
 from ..render.maps import SVBRDF
 from . import priors as P
 from .data import ModelData
-from .likelihood import KINDS, RenderedImages, check_sigma, observe
+from .likelihood import KINDS, RenderedImages, check_saturated, check_sigma, observe
 
 MAPS = ("albedo", "roughness", "specular", "normal")
 
@@ -36,8 +36,9 @@ class MaterialModel:
     roughness_range: tuple = (0.05, 1.0)
     specular: object = 0.04                            # a fixed value / map, or "infer"
     prior: object = field(default_factory=P.uniform)   # a Prior, or {site: Prior}
-    sigma: object = 0.01                               # the noise scale (image units), or "auto" (inferred)
+    sigma: object = "auto"                             # "auto" (inferred, integrated out) or a fixed noise scale
     likelihood: str = "laplace"
+    saturated: str = "censored"                        # clipped pixels: "censored" (lower bounds) or "drop"
     backend: str = "auto"
 
     kind = "model"
@@ -49,6 +50,7 @@ class MaterialModel:
         if not 0 < lo < hi <= 1:
             raise InputError(f"roughness_range must satisfy 0 < low < high <= 1, got {self.roughness_range}")
         check_sigma(self.sigma)
+        check_saturated(self.saturated)
         if self.likelihood not in KINDS:
             raise InputError(f"unknown likelihood '{self.likelihood}'", fix=f"use one of {', '.join(KINDS)}")
         if isinstance(self.specular, str) and self.specular != "infer":
@@ -81,7 +83,8 @@ class MaterialModel:
 
     def __call__(self, data: ModelData):
         values = self.sample_sites(data)
-        observe(data, self.maps(values), sigma=self.sigma, kind=self.likelihood, backend=self.backend)
+        observe(data, self.maps(values), sigma=self.sigma, kind=self.likelihood, backend=self.backend,
+                saturated=self.saturated)
 
     def noise_sigma(self, data: ModelData, values: dict) -> Tensor:
         """The noise scale per particle ``[n]`` for site values ``{site: [n, ...]}``: the fixed ``sigma``, or
