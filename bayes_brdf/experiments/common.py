@@ -18,6 +18,9 @@ from ..render.views import collocated_views
 from ..uncertainty import show_map
 
 SURFACE = PlanarSample(2.0)
+#: the noise scale sigma_err of Eq. 2 the paper's figures use, pinned for the (noiseless) figure problems:
+#: the model default ``sigma = "auto"`` would infer the noise level, which on noiseless renders is its floor
+PAPER_SIGMA = 0.01
 
 
 def synthetic(material: str = "wood", resolution: int = 32, views: int = 10, *, seed: int = 0,
@@ -48,7 +51,7 @@ FIGURE_SAMPLER = {"sampler": "spos",
 def fit(obs: Observations, resolution: int, *, steps: int, particles: int = 20, seed: int = 0,
         sampler=FIGURE_SAMPLER, model=None, params=None, progress: bool = False):
     """Sample the per-texel posterior (RGB albedo, roughness) of ``obs``."""
-    model = model if model is not None else per_texel(resolution)
+    model = model if model is not None else per_texel(resolution, sigma=PAPER_SIGMA)
     return infer(model, obs, sampler, seed=seed, particles=particles, steps=steps, params=params, progress=progress,
                  map_steps=0)
 

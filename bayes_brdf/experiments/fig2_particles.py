@@ -23,7 +23,7 @@ import time
 import numpy as np
 import torch
 
-from .common import FIGURE_SAMPLER, figure_grid, line_plot, prepare, synthetic, write_json
+from .common import FIGURE_SAMPLER, PAPER_SIGMA, figure_grid, line_plot, prepare, synthetic, write_json
 from ..errors import InputError
 from ..inference import infer
 from ..models.data import ModelData
@@ -64,7 +64,7 @@ def run(out, preset: str = "small", seed: int = 0, progress: bool = False, **ove
                          fix="e.g. --set particles=2,4,8,16,32")
     R = int(cfg["resolution"])
     truth, obs = synthetic(cfg["material"], R, views=int(cfg["views"]), seed=seed)
-    model = per_texel(R, specular=truth.specular, normals=truth.normal)
+    model = per_texel(R, specular=truth.specular, normals=truth.normal, sigma=PAPER_SIGMA)
     params = {"step_size": float(cfg["step_size"])}
 
     rows, std_r, std_a = {}, {}, {}

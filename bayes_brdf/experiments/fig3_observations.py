@@ -34,7 +34,7 @@ import time
 import numpy as np
 import torch
 
-from .common import FIGURE_SAMPLER, SURFACE, figure_grid, line_plot, prepare, synthetic, write_json
+from .common import FIGURE_SAMPLER, PAPER_SIGMA, SURFACE, figure_grid, line_plot, prepare, synthetic, write_json
 from .fig2_particles import _ints, start
 from ..errors import InputError
 from ..inference import infer
@@ -103,7 +103,7 @@ def run(out, preset: str = "small", seed: int = 0, progress: bool = False, **ove
         rows, maps = {}, {}
         for k in counts:
             truth, obs = observations(config, cfg["material"], R, k, seed)
-            model = per_texel(R, specular=truth.specular, normals=truth.normal)
+            model = per_texel(R, specular=truth.specular, normals=truth.normal, sigma=PAPER_SIGMA)
             tr = truth.roughness[0]
             ests, errs, stds, row = [], [], [], {"runs": []}
             for s in seeds:

@@ -30,7 +30,7 @@ import time
 import numpy as np
 import torch
 
-from .common import FIGURE_SAMPLER, SURFACE, figure_grid, prepare, save_figure, synthetic, write_json
+from .common import FIGURE_SAMPLER, PAPER_SIGMA, SURFACE, figure_grid, prepare, save_figure, synthetic, write_json
 from ..inference import infer
 from ..models.data import ModelData
 from ..models.material import per_texel
@@ -191,7 +191,7 @@ def run(out, preset: str = "small", seed: int = 0, progress: bool = False, **ove
     R = int(cfg["resolution"])
     truth, obs = synthetic(cfg["material"], R, views=int(cfg["views"]), seed=seed,
                            noise_sigma=float(cfg["noise_sigma"]))
-    model = per_texel(R, specular=truth.specular, normals=truth.normal)
+    model = per_texel(R, specular=truth.specular, normals=truth.normal, sigma=PAPER_SIGMA)
 
     # SPOS, started from prior draws kept off the bounds (where the logit saturates)
     pot0 = Potential(model, (ModelData.from_observations(obs),))

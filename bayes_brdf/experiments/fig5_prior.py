@@ -28,7 +28,7 @@ import time
 import numpy as np
 import torch
 
-from .common import FIGURE_SAMPLER, SURFACE, figure_grid, prepare, save_figure, write_json
+from .common import FIGURE_SAMPLER, PAPER_SIGMA, SURFACE, figure_grid, prepare, save_figure, write_json
 from ..guidance.acquisition import SyntheticCapture
 from ..inference import infer
 from ..models.data import ModelData
@@ -121,7 +121,7 @@ def run(out, preset: str = "small", seed: int = 0, progress: bool = False, **ove
     views = collocated_views(int(cfg["views"]), 3.0, method="sobol", camera="rectified", resolution=R, power=10.0,
                              max_zenith=float(cfg["max_zenith"]), seed=seed)
     obs = SyntheticCapture(truth, SURFACE, noise_sigma=float(cfg["noise_sigma"]), seed=seed)(views)
-    sigma = per_texel(R).sigma
+    sigma = PAPER_SIGMA
 
     # how many texels ever see the highlight: the largest true specular radiance over the observed views
     with torch.no_grad():
@@ -135,7 +135,7 @@ def run(out, preset: str = "small", seed: int = 0, progress: bool = False, **ove
     res, nums, hist = {}, {}, {}
     for p in PRIORS:
         prior = uniform() if p == "uniform" else gaussian(float(cfg["prior_mean"]), float(cfg["prior_std"]))
-        model = per_texel(R, prior={"roughness": prior})
+        model = per_texel(R, prior={"roughness": prior}, sigma=sigma)
         t1 = time.perf_counter()
         post = _sample(model, obs, cfg, seed, progress)
         secs = time.perf_counter() - t1

@@ -30,7 +30,7 @@ from ..guidance.recommend import low_discrepancy
 from ..guidance.scores import parse_noise_var
 from ..models.material import per_texel
 from ..render.views import collocated_views, hemisphere_directions, light_stage_views
-from .common import FIGURE_SAMPLER, SURFACE, line_plot, prepare, write_json
+from .common import FIGURE_SAMPLER, PAPER_SIGMA, SURFACE, line_plot, prepare, write_json
 
 DESCRIPTION = "guided capture (MI) vs low-discrepancy baseline: novel-view error and image-space std vs views"
 
@@ -76,7 +76,7 @@ def run_setting(cfg, kind: str, seed: int, out: Path | None = None, progress: bo
     initial = cap([cands[i] for i in init_idx])
     res = {}
     for method in METHODS:
-        r = guided_acquisition(per_texel(int(cfg["resolution"])), initial, cands, cap, rounds=len(ks), k=ks,
+        r = guided_acquisition(per_texel(int(cfg["resolution"]), sigma=PAPER_SIGMA), initial, cands, cap, rounds=len(ks), k=ks,
                                method=method, radius=float(cfg["radius"]), steps=int(cfg["steps"]),
                                sampler=FIGURE_SAMPLER, map_steps=0,
                                particles=int(cfg["particles"]), seed=seed, initial_indices=init_idx,
