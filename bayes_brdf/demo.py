@@ -163,6 +163,13 @@ def run(out, *, progress: bool = False, log=print, **overrides) -> Path:
     rep.images([(p, f"std of {k}") for p, k in zip(std_pngs, std)] + [(err_r, "actual roughness error")], width=260)
     rep.text("Bright texels in the std maps are ambiguous: the photos do not pin them down. The roughness error "
              "of the MAP is large where the std is large.", cls="note")
+    d = post.diagnostics or {}
+    rep.table([[name, c.get("value"), c.get("threshold"), {True: "pass", False: "FAIL", None: "reported"}[c.get("ok")]]
+               for name, c in d.get("checks", {}).items()],
+              header=["convergence check (docs/samplers.md)", "value", "limit", "verdict"])
+    rep.text(("The sampler's convergence checks passed." if d.get("converged") else
+              f"Not converged: {', '.join(d.get('failed', []))}; a longer run (--steps) would be needed to trust "
+              "the std maps fully."), cls="note")
     rep.heading("3. Image-space uncertainty (Eq. 11) on novel views vs the actual error")
     for row in novel_rows:
         rep.images(row, width=200)

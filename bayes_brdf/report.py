@@ -56,6 +56,8 @@ class Report:
         def cell(v, tag="td"):
             if isinstance(v, float):
                 v = f"{v:.4g}"
+            elif v is None:
+                v = "–"
             return f"<{tag}>{html.escape(str(v))}</{tag}>"
         head = "<tr>" + "".join(cell(h, "th") for h in header) + "</tr>" if header else ""
         body = "".join("<tr>" + "".join(cell(v) for v in r) + "</tr>" for r in rows)
