@@ -133,16 +133,44 @@ class Posterior:
             opt.step()
         return {k: v[0] for k, v in self.potential.to_constrained(z.detach()).items()}
 
+    #: refined optima within this many nats of -log f of each other count as equally good (see refine_map)
+    MAP_TIE_NATS = 1.0
+
     def refine_map(self, steps: int = 300, lr: float = 0.02) -> dict[str, Tensor]:
-        """Refine the MAP (Eq. 7) with ``steps`` of Adam from the best particle, keep it (it is saved with the
-        posterior) and return it; a refinement that ends worse than the best particle keeps the particle."""
-        vals = self.map(refine_steps=steps, lr=lr)
+        """Refine the MAP (Eq. 7) with ``steps`` of Adam, keep it (it is saved with the posterior) and return it.
+
+        Two starts are refined together: the best particle (Eq. 7) and the posterior mean. Where the
+        photos do not pin a parameter down (roughness away from the highlights) the posterior is flat
+        and any value is a maximum; from the best particle the MAP keeps that one particle's random
+        values there (salt and pepper), from the mean it does not. The mean's optimum is kept unless
+        it is more than ``MAP_TIE_NATS`` worse in ``-log f`` than the best particle's (a mean between
+        two modes is); a refinement that ends worse than the best particle itself keeps the particle.
+        """
+        if self.potential is None or self.z is None:
+            raise InputError("MAP refinement needs the model: this posterior was loaded from a file",
+                             fix="use refine_steps=0, or refine with bb.infer(...) in the same session")
+        pot, i = self.potential, self.best()
         with torch.no_grad():
-            z = self.potential.to_unconstrained({k: v[None] for k, v in vals.items()})
-            e = float(self.potential.energy(z, jacobian=False)[0])
-            e0 = float(self.potential.energy(self.z[self.best()][None], jacobian=False)[0])
-        self.map_values = vals if e <= e0 else self.map(refine_steps=0)
-        self.meta["map"] = {"refine_steps": steps, "lr": lr, "energy": min(e, e0), "best_particle_energy": e0}
+            mean = pot.to_unconstrained({k: v.mean(0, keepdim=True) for k, v in self.particles.items()})
+        z = torch.cat([self.z[i:i + 1], mean.to(self.z)]).requires_grad_(True)
+        opt = torch.optim.Adam([z], lr=lr)
+        for _ in range(steps):
+            opt.zero_grad()
+            _, g = pot.value_and_grad(z.detach(), jacobian=False)
+            z.grad = g
+            opt.step()
+        with torch.no_grad():
+            e_best, e_mean = pot.energy(z.detach(), jacobian=False).tolist()
+            e0 = float(pot.energy(self.z[i][None], jacobian=False)[0])
+        row, start = (1, "mean") if e_mean <= e_best + self.MAP_TIE_NATS else (0, "best particle")
+        e = (e_best, e_mean)[row]
+        if e <= e0:
+            self.map_values = {k: v[row] for k, v in pot.to_constrained(z.detach()).items()}
+        else:
+            self.map_values, start, e = self.map(refine_steps=0), "best particle, unrefined", e0
+        self.meta["map"] = {"refine_steps": steps, "lr": lr, "energy": e, "start": start,
+                            "energy_from_best_particle": e_best, "energy_from_mean": e_mean,
+                            "best_particle_energy": e0}
         return dict(self.map_values)
 
     def maps(self, which="mean"):
