@@ -150,6 +150,9 @@ def test_demo_writes_a_self_contained_report(tmp_path, capsys):
     html = (out / "report.html").read_text()
     assert html.count("data:image/png;base64,") >= 10 and "<img src=\"http" not in html   # images embedded
     assert "Image-space uncertainty" in html and "Guided capture" in html
+    # the convergence checks, each with its value, limit and verdict, and the run's verdict (60 steps: not converged)
+    assert "convergence check" in html and "energy_drift" in html and "stein_ratio" in html
+    assert "Not converged:" in html or "checks passed" in html
     printed = capsys.readouterr().out
     assert str((out / "report.html").resolve()) in printed
     d = json.loads((out / "demo.json").read_text())
