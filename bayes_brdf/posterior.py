@@ -124,14 +124,18 @@ class Posterior:
         if self.potential is None or self.z is None:
             raise InputError("MAP refinement needs the model: this posterior was loaded from a file",
                              fix="use refine_steps=0, or refine with bb.infer(...) in the same session")
-        z = self.z[i:i + 1].clone().requires_grad_(True)
+        z = self._adam(self.z[i:i + 1], refine_steps, lr)
+        return {k: v[0] for k, v in self.potential.to_constrained(z).items()}
+
+    def _adam(self, z0: Tensor, steps: int, lr: float) -> Tensor:
+        """``steps`` of Adam on ``-log f`` (no Jacobian) from the rows of ``z0`` (each row independently)."""
+        z = z0.clone().requires_grad_(True)
         opt = torch.optim.Adam([z], lr=lr)
-        for _ in range(refine_steps):
+        for _ in range(steps):
             opt.zero_grad()
-            u, g = self.potential.value_and_grad(z.detach(), jacobian=False)
-            z.grad = g
+            _, z.grad = self.potential.value_and_grad(z.detach(), jacobian=False)
             opt.step()
-        return {k: v[0] for k, v in self.potential.to_constrained(z.detach()).items()}
+        return z.detach()
 
     #: refined optima within this many nats of -log f of each other count as equally good (see refine_map)
     MAP_TIE_NATS = 1.0
@@ -152,20 +156,14 @@ class Posterior:
         pot, i = self.potential, self.best()
         with torch.no_grad():
             mean = pot.to_unconstrained({k: v.mean(0, keepdim=True) for k, v in self.particles.items()})
-        z = torch.cat([self.z[i:i + 1], mean.to(self.z)]).requires_grad_(True)
-        opt = torch.optim.Adam([z], lr=lr)
-        for _ in range(steps):
-            opt.zero_grad()
-            _, g = pot.value_and_grad(z.detach(), jacobian=False)
-            z.grad = g
-            opt.step()
+        z = self._adam(torch.cat([self.z[i:i + 1], mean.to(self.z)]), steps, lr)
         with torch.no_grad():
-            e_best, e_mean = pot.energy(z.detach(), jacobian=False).tolist()
+            e_best, e_mean = pot.energy(z, jacobian=False).tolist()
             e0 = float(pot.energy(self.z[i][None], jacobian=False)[0])
         row, start = (1, "mean") if e_mean <= e_best + self.MAP_TIE_NATS else (0, "best particle")
         e = (e_best, e_mean)[row]
         if e <= e0:
-            self.map_values = {k: v[row] for k, v in pot.to_constrained(z.detach()).items()}
+            self.map_values = {k: v[row] for k, v in pot.to_constrained(z).items()}
         else:
             self.map_values, start, e = self.map(refine_steps=0), "best particle, unrefined", e0
         self.meta["map"] = {"refine_steps": steps, "lr": lr, "energy": e, "start": start,

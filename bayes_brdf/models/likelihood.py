@@ -69,13 +69,10 @@ class _CensoredSum(torch.autograd.Function):
     def forward(ctx, r, level, sigma, w, kind):
         s = sigma.reshape(-1, 1, 1)
         t = (level[None] - r).div_(s)
-        if kind == "laplace":
-            a = t.abs().neg_()
-            e = a.exp()                                                    # exp(-|t|)
-            val = torch.where(t >= 0, a.sub_(math.log(2.0)), torch.log1p(e * -0.5))
-            dlog = torch.where(t >= 0, torch.full_like(t, -1.0), e.mul(-0.5).div_(e.mul(-0.5).add_(1)))
+        val = censored_log_survival(t, kind)
+        if kind == "laplace":       # d/dt: -1 above 0; below, -(e^t / 2) / (1 - e^t / 2) = 1 - 1 / S
+            dlog = torch.where(t >= 0, torch.full_like(t, -1.0), 1 - val.neg().exp_())
         else:
-            val = torch.special.log_ndtr(-t)
             dlog = (-0.5 * t * t - 0.5 * math.log(2 * math.pi) - val).exp_().neg_()   # -phi(t) / Phi(-t)
         ww = w[None, :, None]
         ctx.save_for_backward(t, dlog, s, ww)

@@ -55,6 +55,19 @@ def _clipped_capture(camera="perspective", clip=None, R=12, seed=0):
     return obs, truth, clip
 
 
+def _check_gradient(f, x, idx, rel, h=1e-6):
+    """Autograd's derivative of the scalar ``f`` at ``x`` against central differences at flat indices ``idx``."""
+    (g,) = torch.autograd.grad(f(x), x)
+    for i in idx(g):
+        e = torch.zeros_like(x).flatten()
+        e[i] = h
+        e = e.reshape(x.shape)
+        with torch.no_grad():
+            fd = (f(x + e) - f(x - e)) / (2 * h)
+        assert float(g.flatten()[i]) == pytest.approx(float(fd), rel=rel), i
+    return g
+
+
 def _reference(maps, obs, sigma, kind, censored=True):
     """Plain reference: render every pixel, then sum the density on unclipped pixels and the survival on clipped."""
     img = render(maps, obs.views, obs.surface, backend="eager")          # [n, V, H, W, 3]
@@ -120,14 +133,7 @@ def test_censored_gradient_matches_finite_differences():
     a = truth.albedo.clone()[None].mul(0.9).requires_grad_(True)
     lik = lambda x: RenderedImages(SVBRDF(x, truth.roughness[None], truth.specular, truth.normal),  # noqa: E731
                                    d, 0.05, "gaussian", "eager").censored_log_prob(0.05)[0]
-    (g,) = torch.autograd.grad(lik(a), a)
-    idx = g.abs().flatten().argmax()
-    e = torch.zeros_like(a).flatten()
-    e[idx] = 1e-6
-    e = e.reshape(a.shape)
-    with torch.no_grad():
-        fd = (lik(a + e) - lik(a - e)) / 2e-6
-    assert float(g.flatten()[idx]) == pytest.approx(float(fd), rel=1e-5)
+    g = _check_gradient(lik, a, lambda g: [int(g.abs().flatten().argmax())], rel=1e-5)
     assert float(g.abs().max()) > 0
 
 
@@ -140,14 +146,7 @@ def test_full_log_prob_gradient_with_auto_sigma_matches_finite_differences(kind)
     r0 = truth.roughness[None].clone().requires_grad_(True)
     lp = lambda r: RenderedImages(SVBRDF(truth.albedo[None] * 0.8, r, truth.specular, truth.normal),  # noqa: E731
                                   d, "auto", kind, "eager").log_prob(d.images)[0]
-    (g,) = torch.autograd.grad(lp(r0), r0)
-    for idx in g.abs().flatten().topk(3).indices.tolist():
-        e = torch.zeros_like(r0).flatten()
-        e[idx] = 1e-6
-        e = e.reshape(r0.shape)
-        with torch.no_grad():
-            fd = (lp(r0 + e) - lp(r0 - e)) / 2e-6
-        assert float(g.flatten()[idx]) == pytest.approx(float(fd), rel=1e-4)
+    _check_gradient(lp, r0, lambda g: g.abs().flatten().topk(3).indices.tolist(), rel=1e-4)
     d32 = ModelData.from_observations(obs)
     dark = SVBRDF.constant(0.0, 0.9, dtype=torch.float32)
     v = RenderedImages(dark, d32, 1e-3, kind).censored_log_prob(1e-3)
