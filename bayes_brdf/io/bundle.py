@@ -26,7 +26,7 @@ from ..observations import Observations
 from ..render.surface import PlanarSample
 from ..render.views import View
 from .jsonfile import read_json_object
-from .images import _read_raw, _to_rgb, linear_to_srgb, srgb_to_linear, write_exr, write_png
+from .images import linear_to_srgb, read_raw, srgb_to_linear, to_rgb, write_exr, write_png
 
 __all__ = ["save_observations", "load_observations", "FORMAT_VERSION", "BUNDLE_FILE"]
 
@@ -105,13 +105,13 @@ def save_observations(obs: Observations, directory, image_format: str = "exr") -
         "views": entries,
         "meta": _jsonable(obs.meta or {}),
     }
-    out = d / BUNDLE_FILE
-    out.write_text(json.dumps(doc, indent=2, allow_nan=False))
-    return out
+    from .outputs import write_text
+
+    return write_text(d / BUNDLE_FILE, json.dumps(doc, indent=2, allow_nan=False))
 
 
 def _load_mask(path: Path, shape) -> torch.Tensor:
-    a, full = _read_raw(path)
+    a, full = read_raw(path)
     if a.shape[:2] != tuple(shape):
         raise InputError(f"mask is {a.shape[1]}x{a.shape[0]} but the images are {shape[1]}x{shape[0]}", where=path)
     thr = (full or 1.0) / 2
@@ -162,8 +162,8 @@ def load_observations(directory) -> Observations:
         ip = d / str(e["image"])
         if not ip.is_file():
             raise InputError("image listed in observations.json is missing", where=ip, fix="restore it or re-save the bundle")
-        raw, full = _read_raw(ip)
-        rgb = _to_rgb(raw)
+        raw, full = read_raw(ip)
+        rgb = to_rgb(raw)
         if full is None:
             x = torch.from_numpy(np.ascontiguousarray(rgb, dtype=np.float32))
         else:

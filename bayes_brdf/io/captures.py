@@ -18,12 +18,21 @@ Positions and the sample size are in cm; the sample is the square of side
 rectified to its texel grid (row 0 at ``+y``). As in svbrdf-diff-renderer,
 ``idx`` selects which poses (and which ``NN.png``) are used: view ``i`` is
 photo ``f"{idx[i]:02d}.png"`` with ``camera_pos[idx[i]]`` / ``light_pos[idx[i]]``.
+
+Nothing in a capture folder is skipped without a word: in a MaterialGAN folder
+a numbered image that is not a PNG (``03.exr``, ``03.jpg``) or two photos with
+one index (``3.png`` and ``03.png``) is an :class:`~bayes_brdf.errors.InputError`,
+and other image files (``preview.jpg``) are ignored with a ``UserWarning``. A
+file whose content is not what its name says (an EXR named ``00.png``) is an
+InputError too (see :func:`~bayes_brdf.io.images.read_raw`). Photos are never
+upsampled: a ``resolution`` above their native size is an InputError.
 """
 from __future__ import annotations
 
 import dataclasses
 import math
 import re
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -36,7 +45,8 @@ from ..render.lights import PointLight
 from ..render.surface import PlanarSample
 from ..render.views import View
 from .jsonfile import read_json_object
-from .images import _check_gamma, _read_raw, _size2, _to_rgb, resample, resample_mask, srgb_to_linear
+from .images import (IMAGE_SUFFIXES, check_gamma, parse_resolution, read_raw, resample, resample_mask, sniff_format,
+                     srgb_to_linear, to_rgb)
 
 __all__ = ["load_capture", "describe", "resample_observations", "FORMATS"]
 
@@ -117,24 +127,54 @@ def _need(d: dict, keys, path: Path):
     raise InputError(f"missing key {names}", where=path, fix=f"add {names} to the JSON file")
 
 
+# ------------------------------------------------------------------ resolution
+def _square_resolution(value, name: str) -> int | None:
+    """``None`` or one positive int (a ``(R, R)`` pair is accepted); ``name`` is the argument named in errors."""
+    if value is None:
+        return None
+    try:
+        h, w = parse_resolution(value)
+    except InputError:
+        raise InputError(f"{name} must be a positive integer, got {value!r}",
+                         fix=f"give {name} as the number of pixels per side, e.g. 128") from None
+    if h != w:
+        raise InputError(f"{name} {value!r} is not square but rectified photos are",
+                         fix=f"give {name} as one number of pixels per side") from None
+    return h
+
+
+def _target_resolution(native: int, resolution, max_resolution, where, what="the photos'") -> int | None:
+    """The resolution to resample to (None: keep ``native``); refuses to upsample."""
+    if resolution is not None:
+        if resolution > native:
+            raise InputError(f"--resolution {resolution} is above {what} native {native}", where=where,
+                             fix=f"use at most {native} (upsampling would only interpolate the photos: it adds no "
+                                 "information), or leave it unset for the native size")
+        return resolution
+    if max_resolution is not None and max_resolution < native:
+        return max_resolution
+    return None
+
+
 # ------------------------------------------------------------------ images
-def _load_photos(paths: list[Path], resolution, gamma):
+def _load_photos(paths: list[Path], resolution, max_resolution, gamma, where):
     """Decode photos to linear ``[V, R, R, 3]``, saturation ``[V, R, R]`` and the native size."""
-    g = _check_gamma(gamma)
+    g = check_gamma(gamma)
     lut_cache: dict[float, torch.Tensor] = {}
     imgs, sats, native = [], [], None
     for p in paths:
-        raw, full = _read_raw(p)
+        raw, full = read_raw(p)
         h, w = raw.shape[:2]
         if h != w:
             raise InputError(f"image is {w}x{h} pixels but rectified photos must be square", where=p,
                              fix="crop/rectify it to the square sample")
         if native is None:
             native = (h, w)
+            resolution = _target_resolution(h, resolution, max_resolution, where)  # before decoding the others
         elif (h, w) != native:
             raise InputError(f"image is {w}x{h} but {paths[0].name} is {native[1]}x{native[0]}", where=p,
                              fix="all photos of a capture must have the same size")
-        rgb = _to_rgb(raw)
+        rgb = to_rgb(raw)
         if full is not None:  # integer photo: decode through a lookup table (exact curve)
             if full not in lut_cache:
                 codes = torch.arange(int(full) + 1, dtype=torch.float64) / full
@@ -166,14 +206,28 @@ def _find_image(folder: Path, name: str, extra_dirs) -> Path:
     return folder / name
 
 
-def _assemble(fmt, path, image_paths, cams, lights, power, size, resolution, gamma, where_poses) -> Observations:
-    if resolution is not None:
-        resolution = _size2(resolution)[0]
+def _other_image_files(p: Path) -> list[Path]:
+    """Image files next to ``p`` with its stem but another extension (``02.exr`` for ``02.png``)."""
+    try:
+        return sorted(q for q in p.parent.iterdir() if q.stem == p.stem and q.name.lower() != p.name.lower()
+                      and q.suffix.lower() in IMAGE_SUFFIXES and q.is_file())
+    except OSError:
+        return []
+
+
+def _assemble(fmt, path, image_paths, cams, lights, power, size, resolution, max_resolution, gamma,
+              where_poses) -> Observations:
     for p in image_paths:
         if not p.is_file():
+            others = _other_image_files(p)
+            if others:
+                raise InputError(f"image listed by the capture is missing (there is {others[0].name}, but the photos "
+                                 f"must be PNGs named {p.name})", where=p,
+                                 fix=f"convert {others[0].name} to an 8-bit sRGB PNG {p.name}, or remove its index "
+                                     f"from {where_poses.name}")
             raise InputError("image listed by the capture is missing", where=p,
                              fix=f"add it, or remove its index from {where_poses.name}")
-    images, sat, native = _load_photos(image_paths, resolution, gamma)
+    images, sat, native = _load_photos(image_paths, resolution, max_resolution, gamma, path)
     r = images.shape[1]
     views = [View(RectifiedCamera(position=c, resolution=(r, r)), (PointLight(l, power=power),), name=p.stem)
              for c, l, p in zip(cams, lights, image_paths)]
@@ -185,7 +239,43 @@ def _assemble(fmt, path, image_paths, cams, lights, power, size, resolution, gam
 
 
 # ------------------------------------------------------------------ formats
-def _load_materialgan(folder: Path, resolution, gamma) -> Observations:
+def _kind(p: Path) -> str:
+    """``"an OpenEXR image"``, ``"a JPEG image"``, ... from the content; ``"a file"`` when unknown."""
+    kind = sniff_format(p)
+    return f"an {kind} image" if kind == "OpenEXR" else f"a {kind} image" if kind else "a file"
+
+
+def _materialgan_photos(folder: Path) -> list[Path]:
+    """The ``NN.png`` photos in index order; other image files are an error (numbered) or a warning (not)."""
+    files = sorted(p for p in folder.iterdir() if p.is_file())
+    photos = [p for p in files if _IMAGE_NAME.match(p.name)]
+    others = [p for p in files if p.suffix.lower() in IMAGE_SUFFIXES and not _IMAGE_NAME.match(p.name)]
+    numbered = [p for p in others if p.stem.isdigit()]
+    if numbered:
+        one = len(numbered) == 1
+        it = "it" if one else "them"
+        what = (f"{_kind(numbered[0])} numbered like the photos but not a PNG" if one else
+                ", ".join(f"{p.name} ({_kind(p)})" for p in numbered) + " are numbered like the photos but not PNGs")
+        raise InputError(f"{what}: a MaterialGAN capture reads only photos named NN.png, so {it} would be left out "
+                         "without a word", where=numbered[0] if one else folder,
+                         fix=f"convert {it} to 8-bit sRGB PNG ({numbered[0].stem}.png{', ...' if not one else ''}) or "
+                             f"move {it} out of the folder; for linear EXR photos save an observation bundle "
+                             "(bayes_brdf.io.save_observations) instead")
+    by_index: dict[int, list[Path]] = {}
+    for p in photos:
+        by_index.setdefault(int(_IMAGE_NAME.match(p.name).group(1)), []).append(p)
+    dup = [ps for ps in by_index.values() if len(ps) > 1]
+    if dup:
+        raise InputError(f"photos {' and '.join(p.name for p in dup[0])} have the same index {int(dup[0][0].stem)}",
+                         where=folder, fix="keep one photo per index (00.png, 01.png, ...)")
+    if others:
+        names = ", ".join(p.name for p in others[:5]) + (f" and {len(others) - 5} more" if len(others) > 5 else "")
+        warnings.warn(f"{folder}: ignoring {len(others)} image file(s) not named NN.png: {names} (a MaterialGAN "
+                      "capture uses only its NN.png photos)", UserWarning, stacklevel=4)
+    return sorted(photos, key=lambda p: int(_IMAGE_NAME.match(p.name).group(1)))
+
+
+def _load_materialgan(folder: Path, resolution, max_resolution, gamma) -> Observations:
     cam_file, light_file = folder / "camera_pos.txt", folder / "light_pos.txt"
     size_file, pow_file = folder / "image_size.txt", folder / "light_power.txt"
     cams_raw = _read_text_rows(cam_file)
@@ -199,8 +289,7 @@ def _load_materialgan(folder: Path, resolution, gamma) -> Observations:
     size = _size_cm(size_rows[0] if len(size_rows) == 1 else size_rows, size_file)
     pow_rows = _read_text_rows(pow_file)
     power = _power(pow_rows[0] if len(pow_rows) == 1 else pow_rows, pow_file)
-    images = sorted((p for p in folder.iterdir() if _IMAGE_NAME.match(p.name)),
-                    key=lambda p: (int(_IMAGE_NAME.match(p.name).group(1)), p.name))
+    images = _materialgan_photos(folder)
     if not images:
         raise InputError("no photos named NN.png (00.png, 01.png, ...) found", where=folder,
                          fix="put the rectified photos next to camera_pos.txt")
@@ -210,10 +299,11 @@ def _load_materialgan(folder: Path, resolution, gamma) -> Observations:
     if len(images) != len(cams):
         raise InputError(f"{len(cams)} camera positions but {len(images)} photos NN.png in the folder",
                          where=cam_file, fix="give exactly one x,y,z line per photo, in the photos' sorted order")
-    return _assemble("materialgan", folder, images, cams, lights, power, size, resolution, gamma, cam_file)
+    return _assemble("materialgan", folder, images, cams, lights, power, size, resolution, max_resolution, gamma,
+                     cam_file)
 
 
-def _load_sdr(folder: Path, json_name: str, fmt: str, resolution, gamma) -> Observations:
+def _load_sdr(folder: Path, json_name: str, fmt: str, resolution, max_resolution, gamma) -> Observations:
     jf = folder / json_name
     d = read_json_object(jf)
     size = _size_cm(_need(d, ["image_size", "im_size"], jf), jf)
@@ -245,7 +335,7 @@ def _load_sdr(folder: Path, json_name: str, fmt: str, resolution, gamma) -> Obse
                                 key=lambda p: -int(p.name))
     images = [_find_image(folder, f"{i:02d}.png", extra) for i in idx]
     return _assemble(fmt, folder, images, [cams[i] for i in idx], [lights[i] for i in idx], power, size,
-                     resolution, gamma, jf)
+                     resolution, max_resolution, gamma, jf)
 
 
 def _detect(folder: Path) -> str:
@@ -256,14 +346,19 @@ def _detect(folder: Path) -> str:
                      where=folder, fix="point to a MaterialGAN / svbrdf-diff-renderer capture folder or a saved bundle")
 
 
-def load_capture(path, resolution: int | None = None, fmt: str = "auto", gamma=2.2) -> Observations:
+def load_capture(path, resolution: int | None = None, fmt: str = "auto", gamma=2.2, *,
+                 max_resolution: int | None = None) -> Observations:
     """Load a capture folder as :class:`~bayes_brdf.observations.Observations`.
 
     ``path`` is the capture folder (or its ``parameters.json`` / ``optim.json``
     / ``camera_pos.txt`` / ``observations.json``). ``fmt`` is ``"auto"``
     (detected from the files present) or one of :data:`FORMATS`.
     ``resolution`` (int): resample every photo to ``R x R`` (area average of
-    linear values when shrinking); ``None`` keeps the native size. ``gamma``
+    linear values); ``None`` keeps the native size, or shrinks it to
+    ``max_resolution`` when that is given and smaller (``min(native,
+    max_resolution)``; ignored when ``resolution`` is given). A ``resolution``
+    above the photos' native size is an :class:`~bayes_brdf.errors.InputError`:
+    photos are never upsampled. ``gamma``
     decodes the 8-bit sRGB photos to linear: ``2.2`` (the plain power law the
     source tools use), ``"srgb"`` (exact piecewise curve) or any positive
     exponent.
@@ -295,17 +390,25 @@ def load_capture(path, resolution: int | None = None, fmt: str = "auto", gamma=2
         fmt = _detect(folder)
     if fmt not in FORMATS:
         raise InputError(f"unknown capture format '{fmt}'", fix=f"use auto or one of: {', '.join(FORMATS)}")
-    _check_gamma(gamma)
+    check_gamma(gamma)
+    resolution = _square_resolution(resolution, "resolution")
+    max_resolution = _square_resolution(max_resolution, "max_resolution")
     if fmt == "materialgan":
-        return _load_materialgan(folder, resolution, gamma)
+        return _load_materialgan(folder, resolution, max_resolution, gamma)
     if fmt == "svbrdf-diff-renderer":
-        return _load_sdr(folder, "parameters.json", fmt, resolution, gamma)
+        return _load_sdr(folder, "parameters.json", fmt, resolution, max_resolution, gamma)
     if fmt == "svbrdf-diff-renderer-optim":
-        return _load_sdr(folder, "optim.json", fmt, resolution, gamma)
+        return _load_sdr(folder, "optim.json", fmt, resolution, max_resolution, gamma)
     from .bundle import load_observations
 
     obs = load_observations(folder)
-    return obs if resolution is None else resample_observations(obs, resolution)
+    h, w = obs.resolution
+    if resolution is not None:
+        return resample_observations(obs, _target_resolution(min(h, w), resolution, None, folder, "the bundle's"))
+    if max_resolution is not None and max(h, w) > max_resolution:  # shrink, keeping the aspect ratio
+        f = max_resolution / max(h, w)
+        return resample_observations(obs, (max(1, round(h * f)), max(1, round(w * f))))
+    return obs
 
 
 def resample_observations(obs: Observations, resolution) -> Observations:
@@ -320,7 +423,7 @@ def resample_observations(obs: Observations, resolution) -> Observations:
         >>> small.resolution   # doctest: +SKIP
         (64, 64)
     """
-    h, w = _size2(resolution)
+    h, w = parse_resolution(resolution)
     if tuple(obs.resolution) == (h, w):
         return obs
     views = [dataclasses.replace(v, camera=dataclasses.replace(v.camera, resolution=(h, w))) for v in obs.views]

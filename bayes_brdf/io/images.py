@@ -11,17 +11,27 @@
   stacks ``[V, H, W, C]`` (area average when shrinking, bilinear when growing)
   and of boolean masks (a pixel is set if any source pixel it covers is set).
 
+Building blocks shared by the capture, bundle and map-file loaders:
+
+* :func:`read_raw` -- a file's native pixels (``uint8`` / ``uint16`` codes or
+  ``float32``) and full-scale code; :func:`to_rgb` -- gray promoted, alpha dropped.
+* :func:`sniff_format` -- the format from the file's first bytes. The content,
+  not the name, decides how a file is read, and a ``.png`` / ``.exr`` name
+  that disagrees with the content is an :class:`~bayes_brdf.errors.InputError`.
+* :func:`check_gamma` / :func:`parse_resolution` -- validate a display curve
+  and an ``R`` or ``(H, W)`` resolution.
+
 numpy appears only at the file boundary; everything else works on torch tensors.
 
-Pillow reads 16-bit RGB(A) PNGs as 8-bit, so those are decoded here by a small
-PNG reader (non-interlaced files only); 16-bit PNGs are written by a small
-encoder for the same reason.
+Pillow reads 16-bit RGB(A) PNGs as 8-bit and cannot write them, so 16-bit PNGs
+are read and written with OpenCV (``opencv-python-headless``, libpng; imported
+only when a 16-bit PNG is met); 8-bit PNGs and other formats go through Pillow,
+EXR through OpenEXR.
 """
 from __future__ import annotations
 
 import math
-import struct
-import zlib
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -31,13 +41,21 @@ from torch import Tensor
 from ..errors import InputError
 
 __all__ = ["read_image", "write_png", "write_exr", "srgb_to_linear", "linear_to_srgb",
-           "resample", "resample_mask"]
-
-_PNG_SIG = b"\x89PNG\r\n\x1a\n"
+           "resample", "resample_mask", "read_raw", "to_rgb", "check_gamma", "parse_resolution",
+           "sniff_format", "PNG_SIGNATURE", "EXR_MAGIC", "IMAGE_SUFFIXES"]
 
 
 # ------------------------------------------------------------------ colour curves
-def _check_gamma(gamma) -> str | float:
+def check_gamma(gamma) -> str | float:
+    """Validate a display-curve choice: returns ``"srgb"`` or the power-law exponent as a float.
+
+    Accepts ``"srgb"`` (any case) or a positive finite number; anything else
+    raises :class:`~bayes_brdf.errors.InputError`.
+
+    Example:
+        >>> check_gamma("sRGB"), check_gamma(2)
+        ('srgb', 2.0)
+    """
     if isinstance(gamma, str):
         if gamma.lower() != "srgb":
             raise InputError(f"unknown gamma '{gamma}'", fix="use a positive number (2.2: plain power law) or 'srgb'")
@@ -73,7 +91,7 @@ def srgb_to_linear(x, gamma=2.2):
         >>> round(float(srgb_to_linear(torch.tensor(0.5), "srgb")), 6)
         0.214041
     """
-    g = _check_gamma(gamma)
+    g = check_gamma(gamma)
     t, was_np = _as_float_tensor(x)
     t = t.clamp_min(0)
     if g == "srgb":
@@ -95,7 +113,7 @@ def linear_to_srgb(x, gamma=2.2):
         >>> torch.allclose(srgb_to_linear(linear_to_srgb(x, "srgb"), "srgb"), x, atol=1e-6)
         True
     """
-    g = _check_gamma(gamma)
+    g = check_gamma(gamma)
     t, was_np = _as_float_tensor(x)
     t = t.clamp_min(0)
     if g == "srgb":
@@ -105,135 +123,180 @@ def linear_to_srgb(x, gamma=2.2):
     return out.numpy() if was_np else out
 
 
-# ------------------------------------------------------------------ PNG (own codec)
-def _paeth(a, b, c):
-    p = a + b - c
-    pa, pb, pc = abs(p - a), abs(p - b), abs(p - c)
-    if pa <= pb and pa <= pc:
-        return a
-    return b if pb <= pc else c
+# ------------------------------------------------------------------ file formats (by content)
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+EXR_MAGIC = b"\x76\x2f\x31\x01"
+
+# first bytes -> format name; the name -> the file name extension it should have
+_MAGIC = ((PNG_SIGNATURE, "PNG"), (EXR_MAGIC, "OpenEXR"), (b"\xff\xd8\xff", "JPEG"), (b"II*\x00", "TIFF"),
+          (b"MM\x00*", "TIFF"), (b"GIF87a", "GIF"), (b"GIF89a", "GIF"), (b"#?RADIANCE", "Radiance HDR"),
+          (b"#?RGBE", "Radiance HDR"), (b"BM", "BMP"))
+_EXTENSION = {"PNG": ".png", "OpenEXR": ".exr", "JPEG": ".jpg", "TIFF": ".tif", "GIF": ".gif",
+              "Radiance HDR": ".hdr", "BMP": ".bmp", "WebP": ".webp"}
+_CHECKED = {".png": "PNG", ".exr": "OpenEXR"}  # extensions whose content must match
+IMAGE_SUFFIXES = (".png", ".exr", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".gif", ".webp", ".hdr")
 
 
-def _unfilter(raw: bytes, h: int, stride: int, bpp: int, where) -> np.ndarray:
-    """Undo the PNG per-row filters; returns ``uint8 [h, stride]``."""
-    need = h * (stride + 1)
-    if len(raw) < need:
-        raise InputError("PNG data is truncated", where=where, fix="re-export the image")
-    rows = np.frombuffer(raw, dtype=np.uint8, count=need).reshape(h, stride + 1)
-    out = np.zeros((h, stride), dtype=np.uint8)
-    prior = np.zeros(stride, dtype=np.uint8)
-    for y in range(h):
-        f, line = int(rows[y, 0]), rows[y, 1:]
-        if f == 0:
-            cur = line.copy()
-        elif f == 1:  # Sub: running sum per byte lane, mod 256
-            lanes = line.reshape(-1, bpp).astype(np.uint64)
-            cur = (np.cumsum(lanes, axis=0) % 256).astype(np.uint8).reshape(-1)
-        elif f == 2:  # Up
-            cur = line + prior  # uint8 arithmetic wraps mod 256
-        elif f in (3, 4):  # Average / Paeth: sequential along the row
-            cur_l = bytearray(stride)
-            ln, pr = line.tolist(), prior.tolist()
-            for i in range(stride):
-                a = cur_l[i - bpp] if i >= bpp else 0
-                b = pr[i]
-                if f == 3:
-                    pred = (a + b) >> 1
-                else:
-                    pred = _paeth(a, b, pr[i - bpp] if i >= bpp else 0)
-                cur_l[i] = (ln[i] + pred) & 255
-            cur = np.frombuffer(bytes(cur_l), dtype=np.uint8)
-        else:
-            raise InputError(f"PNG row {y} has unknown filter type {f}", where=where,
-                             fix="the file is corrupt; re-export the image")
-        out[y] = cur
-        prior = cur
-    return out
+def _format_of(head: bytes) -> str | None:
+    if head[:4] == b"RIFF" and head[8:12] == b"WEBP":
+        return "WebP"
+    return next((name for magic, name in _MAGIC if head.startswith(magic)), None)
 
 
-def _decode_png(data: bytes, where) -> np.ndarray:
-    """Decode a non-interlaced 8/16-bit gray/RGB(A) PNG to ``uint8/uint16 [H, W, C]``."""
-    if not data.startswith(_PNG_SIG):
-        raise InputError("not a PNG file", where=where, fix="give a PNG image")
-    pos, ihdr, idat = 8, None, []
+def _read_head(path: Path, n: int = 33) -> bytes:
     try:
-        while pos < len(data):
-            n, kind = struct.unpack(">I4s", data[pos:pos + 8])
-            body = data[pos + 8:pos + 8 + n]
-            if kind == b"IHDR":
-                ihdr = struct.unpack(">IIBBBBB", body)
-            elif kind == b"IDAT":
-                idat.append(body)
-            elif kind == b"IEND":
-                break
-            pos += 12 + n
-        w, h, depth, ctype, _, _, interlace = ihdr
-        raw = zlib.decompress(b"".join(idat))
-    except (struct.error, TypeError, zlib.error):
-        raise InputError("corrupt PNG (bad chunks or compressed data)", where=where,
-                         fix="re-export the image") from None
-    chans = {0: 1, 2: 3, 4: 2, 6: 4}.get(ctype)
-    if chans is None or depth not in (8, 16) or interlace != 0:
-        raise InputError(f"unsupported PNG layout (bit depth {depth}, colour type {ctype}, interlace {interlace})",
-                         where=where, fix="save it as a non-interlaced 8- or 16-bit gray/RGB PNG")
-    bps = depth // 8
-    bpp = chans * bps
-    flat = _unfilter(raw, h, w * bpp, bpp, where)
-    if bps == 1:
-        return flat.reshape(h, w, chans)
-    return flat.view(">u2").reshape(h, w, chans).astype(np.uint16)
+        with open(path, "rb") as f:
+            return f.read(n)
+    except OSError as e:
+        raise InputError(f"cannot open image ({e.strerror})", where=path) from None
 
 
-def _filter_rows(img: np.ndarray, bpp: int, ftype: int) -> np.ndarray:
-    """Apply one PNG filter type to all rows of ``uint8 [h, stride]`` (vectorised)."""
-    x = img.astype(np.int32)
-    h, stride = x.shape
-    a = np.zeros_like(x)
-    a[:, bpp:] = x[:, :-bpp]
-    b = np.zeros_like(x)
-    b[1:] = x[:-1]
-    c = np.zeros_like(x)
-    c[1:, bpp:] = x[:-1, :-bpp]
-    if ftype == 0:
-        pred = np.zeros_like(x)
-    elif ftype == 1:
-        pred = a
-    elif ftype == 2:
-        pred = b
-    elif ftype == 3:
-        pred = (a + b) >> 1
-    elif ftype == 4:
-        p = a + b - c
-        pa, pb, pc = np.abs(p - a), np.abs(p - b), np.abs(p - c)
-        pred = np.where((pa <= pb) & (pa <= pc), a, np.where(pb <= pc, b, c))
-    else:
-        raise ValueError(f"PNG filter type must be 0..4, got {ftype}")
-    return ((x - pred) & 255).astype(np.uint8)
+def sniff_format(path) -> str | None:
+    """The image format of a file judged from its first bytes (its content, not its name).
+
+    Returns ``"PNG"``, ``"OpenEXR"``, ``"JPEG"``, ``"TIFF"``, ``"GIF"``, ``"WebP"``,
+    ``"BMP"``, ``"Radiance HDR"``, or None when the content is none of these.
+
+    Example:
+        >>> sniff_format(write_exr("/tmp/x.png", torch.zeros(2, 2)))   # doctest: +SKIP
+        'OpenEXR'
+    """
+    return _format_of(_read_head(Path(path), 12))
 
 
-def _encode_png(arr: np.ndarray, filter_type: int = 2) -> bytes:
-    """Encode ``uint8/uint16 [H, W, C]`` (C in 1..4) as a PNG (one filter type for all rows)."""
-    h, w, c = arr.shape
-    depth = 16 if arr.dtype == np.uint16 else 8
-    ctype = {1: 0, 2: 4, 3: 2, 4: 6}[c]
-    rows = np.ascontiguousarray(arr.astype(">u2") if depth == 16 else arr).view(np.uint8).reshape(h, -1)
-    filt = _filter_rows(rows, c * depth // 8, filter_type)
-    body = np.concatenate([np.full((h, 1), filter_type, np.uint8), filt], axis=1).tobytes()
-
-    def chunk(kind: bytes, data: bytes) -> bytes:
-        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data) & 0xFFFFFFFF)
-
-    return (_PNG_SIG + chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, depth, ctype, 0, 0, 0))
-            + chunk(b"IDAT", zlib.compress(body, 6)) + chunk(b"IEND", b""))
-
-
-def _png_header(path: Path) -> tuple[int, int] | None:
-    """``(bit depth, colour type)`` of a PNG file, or None when it is not a PNG."""
-    with open(path, "rb") as f:
-        head = f.read(33)
-    if not head.startswith(_PNG_SIG) or len(head) < 29 or head[12:16] != b"IHDR":
+def _png_header(head: bytes) -> tuple[int, int] | None:
+    """``(bit depth, colour type)`` from a PNG file's first 33 bytes, or None when it is not a PNG."""
+    if not head.startswith(PNG_SIGNATURE) or len(head) < 29 or head[12:16] != b"IHDR":
         return None
     return head[24], head[25]
+
+
+def _check_content_matches_name(path: Path, fmt: str | None) -> None:
+    """A ``.png`` must hold a PNG and a ``.exr`` an OpenEXR image; EXR data under another image extension is refused too.
+
+    The name is what the capture/bundle/map loaders (and people) go by: ``NN.png``
+    means display-encoded integer codes (with clipping), ``.exr`` exact linear
+    floats. When name and content disagree we cannot know which one is meant.
+    """
+    ext = path.suffix.lower()
+    want = _CHECKED.get(ext)
+    if fmt == "OpenEXR" and ext != ".exr" and ext in IMAGE_SUFFIXES:
+        raise InputError(f"the file holds an OpenEXR image (linear float) but its name ends in {path.suffix}",
+                         where=path, fix=f"rename it to {path.stem}.exr if it is meant as linear EXR data, "
+                                         f"or re-export it as a real {ext.lstrip('.').upper()}")
+    if want is None or fmt == want:
+        return
+    if fmt is None:
+        raise InputError(f"cannot read image (not a{'n' if want == 'OpenEXR' else ''} {want} file: it does not start "
+                         f"with the {want} {'signature' if want == 'PNG' else 'magic number'})", where=path,
+                         fix="check the file is a valid, complete image (re-export it)")
+    real = _EXTENSION.get(fmt, "")
+    raise InputError(f"the file holds a {fmt} image but its name ends in {path.suffix}", where=path,
+                     fix=f"rename it to {path.stem}{real}, or convert it to "
+                         f"{'a linear float OpenEXR image' if want == 'OpenEXR' else 'a lossless PNG'}")
+
+
+# ------------------------------------------------------------------ 16-bit PNG (OpenCV)
+# Pillow reads 16-bit RGB(A) PNGs as 8-bit and cannot write them, so 16-bit PNGs go through
+# OpenCV (libpng); 8-bit ones (incl. palette / transparency) stay with Pillow.
+class _Quiet:
+    """What OpenCV / libpng wrote to the stderr file descriptor while silenced (their own error text)."""
+
+    text = ""
+
+    def reason(self) -> str:
+        lines = [ln.strip() for ln in self.text.splitlines() if ln.strip()]
+        return f" ({lines[-1][:200]})" if lines else ""
+
+
+@contextmanager
+def _quiet_opencv():
+    """Yield ``cv2`` with its logger silenced and fd 2 captured.
+
+    On a corrupt file libpng prints ``libpng error: ...`` straight to the stderr
+    file descriptor (not through Python or OpenCV's logger); we raise one
+    InputError instead and put libpng's words in it, so nothing else is printed.
+    """
+    import os
+    import sys
+    import tempfile
+
+    import cv2
+
+    quiet = _Quiet()
+    log = getattr(getattr(cv2, "utils", None), "logging", None)
+    old_level = None
+    if log is not None:
+        try:
+            old_level = log.getLogLevel()
+            log.setLogLevel(log.LOG_LEVEL_SILENT)
+        except Exception:  # pragma: no cover - an OpenCV without the logging API
+            old_level = None
+    saved, tmp = None, None
+    try:
+        sys.stderr.flush()
+        tmp = tempfile.TemporaryFile()
+        saved = os.dup(2)
+        os.dup2(tmp.fileno(), 2)
+    except (OSError, ValueError, AttributeError):  # no usable fd 2 (e.g. a daemon): just run
+        if tmp is not None:
+            tmp.close()
+        saved, tmp = None, None
+    try:
+        yield cv2, quiet
+    finally:
+        if saved is not None:
+            os.dup2(saved, 2)
+            os.close(saved)
+            tmp.seek(0)
+            quiet.text = tmp.read().decode("utf-8", "replace")
+            tmp.close()
+        if old_level is not None:
+            log.setLogLevel(old_level)
+
+
+def _read_png16(path: Path, ctype: int) -> np.ndarray:
+    """Decode a 16-bit PNG to ``uint16 [H, W, C]`` as stored (C: 1 gray, 2 gray+alpha, 3 RGB, 4 RGBA)."""
+    data = np.fromfile(path, dtype=np.uint8)
+    with _quiet_opencv() as (cv2, quiet):
+        try:
+            a = cv2.imdecode(data, cv2.IMREAD_UNCHANGED) if data.size else None
+        except cv2.error:
+            a = None
+    if a is None or a.dtype != np.uint16:
+        raise InputError(f"cannot read image: corrupt or truncated 16-bit PNG data{quiet.reason()}", where=path,
+                         fix="re-export the image")
+    if a.ndim == 2:
+        a = a[..., None]
+    elif a.shape[-1] == 3:
+        a = a[..., ::-1]  # OpenCV's BGR -> RGB
+    elif a.shape[-1] == 4:
+        a = a[..., [2, 1, 0, 3]]  # BGRA -> RGBA
+    if ctype in (0, 4) and a.shape[-1] >= 3:  # gray(+alpha) that OpenCV expanded to BGR(A)
+        a = a[..., [0, 3]] if a.shape[-1] == 4 else a[..., :1]
+    return np.ascontiguousarray(a)
+
+
+def _encode_png16(q: np.ndarray, where) -> bytes:
+    """Encode ``uint16 [H, W, C]`` (C in 1..4; gray+alpha is stored as RGBA) as PNG bytes."""
+    c = q.shape[-1]
+    if c == 1:
+        bgr = q[..., 0]
+    elif c == 2:  # libpng through OpenCV writes 1, 3 or 4 channels
+        bgr = q[..., [0, 0, 0, 1]]
+    elif c == 3:
+        bgr = q[..., ::-1]
+    else:
+        bgr = q[..., [2, 1, 0, 3]]
+    with _quiet_opencv() as (cv2, quiet):
+        try:
+            ok, buf = cv2.imencode(".png", np.ascontiguousarray(bgr))
+        except cv2.error:
+            ok = False
+    if not ok:
+        raise InputError(f"cannot encode a {q.shape[1]}x{q.shape[0]} 16-bit PNG{quiet.reason()}", where=where,
+                         fix="check the image size, or write an EXR instead")
+    return buf.tobytes()
 
 
 # ------------------------------------------------------------------ reading
@@ -261,27 +324,39 @@ def _read_exr(path: Path) -> np.ndarray:
                      fix="save it with R, G, B (or a single Y) channels")
 
 
-def _read_raw(path) -> tuple[np.ndarray, float | None]:
-    """Native pixels ``[H, W, C]`` and the integer full-scale code (None for float files).
+def read_raw(path) -> tuple[np.ndarray, float | None]:
+    """Native pixels ``[H, W, C]`` of an image file and its integer full-scale code (None for float files).
 
-    Integer images come back as uint8/uint16 (C = 1..4 as stored); float files as float32.
+    The format is decided by the file's content (:func:`sniff_format`), and a
+    name that promises another format is an :class:`~bayes_brdf.errors.InputError`:
+    a ``.png`` must hold a PNG, a ``.exr`` an OpenEXR image, and OpenEXR data is
+    refused under any other image extension (see :data:`IMAGE_SUFFIXES`). Files
+    with other or no extensions are read by content.
+
+    Integer images come back as ``uint8`` / ``uint16`` with ``C = 1..4`` channels
+    as stored (1 gray, 2 gray + alpha, 3 RGB, 4 RGBA; palette images expanded
+    to RGB(A)) and full scale ``255.0`` / ``65535.0``; float files (EXR) as
+    ``float32`` and ``None``. This is the building block of :func:`read_image`
+    for callers that need the raw codes (e.g. to find clipped pixels).
+
+    Example:
+        >>> a, full = read_raw("capture/00.png")     # doctest: +SKIP
+        >>> a.dtype, a.shape, full   # doctest: +SKIP
+        (dtype('uint8'), (1024, 1024, 3), 255.0)
     """
     path = Path(path)
     if not path.exists():
         raise InputError("image file not found", where=path, fix="check the path")
     if path.is_dir():
         raise InputError("expected an image file but this is a folder", where=path)
-    try:
-        with open(path, "rb") as f:
-            magic = f.read(4)
-    except OSError as e:
-        raise InputError(f"cannot open image ({e.strerror})", where=path) from None
-    if magic == b"\x76\x2f\x31\x01":  # OpenEXR magic number
+    head = _read_head(path)
+    fmt = _format_of(head)
+    _check_content_matches_name(path, fmt)
+    if fmt == "OpenEXR":
         return _read_exr(path), None
-    hdr = _png_header(path)
+    hdr = _png_header(head)
     if hdr is not None and hdr[0] == 16:
-        a = _decode_png(path.read_bytes(), path)
-        return a, 65535.0
+        return _read_png16(path, hdr[1]), 65535.0
     from PIL import Image, UnidentifiedImageError
 
     try:
@@ -306,8 +381,13 @@ def _read_raw(path) -> tuple[np.ndarray, float | None]:
     return a.astype(np.float32), None
 
 
-def _to_rgb(a: np.ndarray) -> np.ndarray:
-    """``[H, W, C]`` -> ``[H, W, 3]``: gray promoted, alpha dropped."""
+def to_rgb(a: np.ndarray) -> np.ndarray:
+    """``[H, W, C]`` pixels (as from :func:`read_raw`) -> ``[H, W, 3]``: gray promoted, alpha dropped.
+
+    Example:
+        >>> to_rgb(np.zeros((2, 2, 2), np.uint8)).shape      # gray + alpha
+        (2, 2, 3)
+    """
     c = a.shape[-1]
     if c in (1, 2):
         return np.repeat(a[..., :1], 3, axis=-1)
@@ -320,16 +400,18 @@ def read_image(path) -> np.ndarray:
     PNG / JPEG / ... (8 or 16 bit) come back as the stored display values
     scaled to ``[0, 1]`` (NOT linearised: see :func:`srgb_to_linear`); EXR comes
     back as its linear float values. Grayscale is promoted to 3 channels and
-    alpha is dropped. Every problem raises :class:`~bayes_brdf.errors.InputError`
-    naming the file.
+    alpha is dropped. The content decides the format; a ``.png`` that is not a
+    PNG or a ``.exr`` that is not an OpenEXR image (e.g. an EXR renamed to
+    ``.png``) is refused rather than guessed (see :func:`read_raw`). Every
+    problem raises :class:`~bayes_brdf.errors.InputError` naming the file.
 
     Example:
         >>> img = read_image("capture/00.png")          # doctest: +SKIP
         >>> img.shape, img.dtype   # doctest: +SKIP
         ((1024, 1024, 3), dtype('float32'))
     """
-    a, full = _read_raw(path)
-    a = _to_rgb(a)
+    a, full = read_raw(path)
+    a = to_rgb(a)
     if full is not None:
         return (a.astype(np.float32) / np.float32(full)).astype(np.float32)
     return np.ascontiguousarray(a, dtype=np.float32)
@@ -354,8 +436,10 @@ def write_png(path, img, *, linear: bool = True, gamma=2.2, bits: int = 8) -> Pa
     :func:`linear_to_srgb` (``gamma``: 2.2 power law or ``"srgb"``) before
     quantisation; ``linear=False``: ``img`` already holds display values in
     ``[0, 1]`` (e.g. a roughness map or an encoded normal map) and is stored as
-    is. Values are clipped to ``[0, 1]`` and rounded to ``bits`` (8 or 16) bits.
-    Parent folders are created. Returns the path.
+    is. Values are clipped to ``[0, 1]`` and rounded to ``bits`` (8 or 16) bits
+    (atomically, mode 0644; 8-bit files are written by Pillow, 16-bit ones by OpenCV; a 2-channel
+    gray + alpha image is stored as 16-bit RGBA). Parent folders are created.
+    Returns the path.
 
     Example:
         >>> write_png("/tmp/preview.png", torch.rand(64, 64, 3))   # doctest: +SKIP
@@ -371,13 +455,15 @@ def write_png(path, img, *, linear: bool = True, gamma=2.2, bits: int = 8) -> Pa
     t = torch.nan_to_num(t, nan=0.0).clamp(0, 1)
     full = 255 if bits == 8 else 65535
     q = torch.round(t * full).numpy().astype(np.uint8 if bits == 8 else np.uint16)
-    path.parent.mkdir(parents=True, exist_ok=True)
+    from .outputs import atomic_path, write_bytes
+
     if bits == 8:
         from PIL import Image
 
-        Image.fromarray(q[..., 0] if q.shape[-1] == 1 else q).save(path, format="PNG")
+        with atomic_path(path) as tmp:
+            Image.fromarray(q[..., 0] if q.shape[-1] == 1 else q).save(tmp, format="PNG")
     else:
-        path.write_bytes(_encode_png(q))
+        write_bytes(path, _encode_png16(q, path))
     return path
 
 
@@ -385,7 +471,7 @@ def write_exr(path, img) -> Path:
     """Write ``img`` (``[H, W]``, ``[H, W, 1]`` or ``[H, W, 3]``) as a lossless float32 EXR.
 
     One channel is stored as ``Y``, three as ``RGB`` (ZIP compression, lossless,
-    so :func:`read_image` gives back the same float32 values). Returns the path.
+    so :func:`read_image` gives back the same float32 values), atomically. Returns the path.
 
     Example:
         >>> write_exr("/tmp/radiance.exr", torch.rand(32, 32, 3))   # doctest: +SKIP
@@ -401,15 +487,25 @@ def write_exr(path, img) -> Path:
         chans = {"RGB": a}
     else:
         raise InputError(f"EXR image must have 1 or 3 channels, got {a.shape[-1]}", where=path)
-    path.parent.mkdir(parents=True, exist_ok=True)
+    from .outputs import atomic_path
+
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
-    with OpenEXR.File(header, chans) as f:
-        f.write(str(path))
+    with atomic_path(path) as tmp, OpenEXR.File(header, chans) as f:
+        f.write(str(tmp))
     return path
 
 
 # ------------------------------------------------------------------ resampling
-def _size2(size) -> tuple[int, int]:
+def parse_resolution(size) -> tuple[int, int]:
+    """``size`` (an int ``R`` or ``(height, width)``) as ``(height, width)`` of positive ints.
+
+    Raises :class:`~bayes_brdf.errors.InputError` naming "resolution" for
+    anything else (0, negatives, fractions, strings).
+
+    Example:
+        >>> parse_resolution(128), parse_resolution((64, 32))
+        ((128, 128), (64, 32))
+    """
     if isinstance(size, (tuple, list)):
         hw = tuple(size)
     else:
@@ -441,7 +537,7 @@ def resample(images: Tensor, size) -> Tensor:
     """
     from kornia.geometry.transform import resize
 
-    h, w = _size2(size)
+    h, w = parse_resolution(size)
     if not isinstance(images, Tensor) or images.dim() < 3:
         raise InputError(f"resample needs a tensor [..., H, W, C], got {getattr(images, 'shape', type(images))}")
     if tuple(images.shape[-3:-1]) == (h, w):
@@ -473,7 +569,7 @@ def resample_mask(mask: Tensor, size) -> Tensor:
         >>> resample_mask(m, 2)[0].tolist()
         [[True, False], [False, False]]
     """
-    h, w = _size2(size)
+    h, w = parse_resolution(size)
     if mask.dim() < 2:
         raise InputError(f"resample_mask needs a tensor [..., H, W], got shape {tuple(mask.shape)}")
     if tuple(mask.shape[-2:]) == (h, w):

@@ -18,7 +18,7 @@ import torch
 
 from ..errors import InputError
 from ..render.maps import SVBRDF
-from .images import _read_raw, srgb_to_linear, write_exr, write_png
+from .images import read_raw, srgb_to_linear, write_exr, write_png
 
 __all__ = ["save_svbrdf", "load_svbrdf", "load_peer_svbrdf_panel", "MAP_NAMES"]
 
@@ -125,7 +125,7 @@ def load_svbrdf(directory) -> SVBRDF:
         if path is None:
             raise InputError(f"{name} map not found", where=d / f"{name}.exr",
                              fix=f"add {name}.exr (or {name}.png) to the folder")
-        raw, full = _read_raw(path)
+        raw, full = read_raw(path)
         out[name] = _decode_map(name, raw, full, path)
     return SVBRDF(**out)
 
@@ -143,7 +143,7 @@ def load_peer_svbrdf_panel(png_path) -> SVBRDF:
         (torch.Size([3, 256, 256]), torch.Size([1, 256, 256]))
     """
     path = Path(png_path)
-    raw, full = _read_raw(path)
+    raw, full = read_raw(path)
     h, w = raw.shape[:2]
     if w != 4 * h:
         raise InputError(f"panel image is {w}x{h}, expected four square panels side by side (width = 4 x height)",

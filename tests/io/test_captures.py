@@ -149,19 +149,20 @@ def test_svbrdf_diff_renderer_images_in_subfolder(tmp_path):
     assert obs.meta["format"] == "svbrdf-diff-renderer-optim" and obs.views[0].lights[0].power == (1.0, 2.0, 3.0)
 
 
-def test_materialgan_sorts_photos_numerically_and_upsamples(tmp_path):
+def test_materialgan_sorts_photos_numerically_and_downsamples(tmp_path):
     n = 11
     for i in range(n):
-        _photo(tmp_path / f"{i}.png", 20 * i, size=4, sat_at=(0, 0) if i == 10 else None)
+        _photo(tmp_path / f"{i}.png", 20 * i, size=8, sat_at=(1, 6) if i == 10 else None)
     lines = "\n".join(f"{i},0,20" for i in range(n))
     (tmp_path / "camera_pos.txt").write_text(lines + "\n")
     (tmp_path / "light_pos.txt").write_text(lines + "\n")
     (tmp_path / "image_size.txt").write_text("5.0\n")
     (tmp_path / "light_power.txt").write_text("900\n")
-    obs = load_capture(tmp_path, resolution=8)
+    obs = load_capture(tmp_path, resolution=4)
     assert [v.name for v in obs.views] == [str(i) for i in range(n)]  # 2 before 10
     assert [v.camera.position[0] for v in obs.views] == list(range(n))
-    assert obs.images.shape == (n, 8, 8, 3) and obs.views[0].lights[0].power == (900.0,) * 3
+    assert obs.images.shape == (n, 4, 4, 3) and obs.views[0].lights[0].power == (900.0,) * 3
     assert float(obs.images[5, 3, 3, 0]) == pytest.approx((100 / 255) ** 2.2, rel=1e-6)
-    # upsampling: the clipped corner pixel marks the output pixels that interpolate from it
-    assert obs.saturated[10, :3, :3].all() and not bool(obs.saturated[10, 3:].any())
+    # downsampling: the clipped pixel marks the one output pixel whose footprint holds it
+    assert obs.saturated[10].nonzero().tolist() == [[0, 3]] and not bool(obs.saturated[:10].any())
+    assert obs.meta["native_resolution"] == [8, 8]
