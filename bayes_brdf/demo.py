@@ -22,6 +22,7 @@ from .experiments.common import SURFACE, line_plot
 from .guidance import Evaluation, SyntheticCapture, guided_acquisition, low_discrepancy, recommend, score_views
 from .inference import infer
 from .io import write_png
+from .io.outputs import write_text
 from .materials import make_material
 from .models.material import per_texel
 from .render.shade import render
@@ -191,8 +192,8 @@ def run(out, *, progress: bool = False, log=print, **overrides) -> Path:
     rep.code("bayes-brdf demo --out " + str(out) + "\n"
              "bayes-brdf fit ../shared/data/captures/card_blue --views 0,2,4,6,8 --out out/fit_card_blue\n"
              "bayes-brdf recommend ../shared/data/captures/card_blue --views 0,2,4 --k 2")
-    (out / "demo.json").write_text(json.dumps({"config": cfg, "seconds": times, "novel_correlation": corr,
-                                                "recommended": rec.indices,
-                                                "rounds": {lab: r.rounds for lab, r in curves.items()}},
-                                               indent=1, default=float))
+    write_text(out / "demo.json", json.dumps({"config": cfg, "seconds": times, "novel_correlation": corr,
+                                              "recommended": rec.indices,
+                                              "rounds": {lab: r.rounds for lab, r in curves.items()}},
+                                             indent=1, default=float))
     return rep.write(out / "report.html")

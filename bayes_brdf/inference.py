@@ -9,6 +9,7 @@ from typing import Callable
 import torch
 
 from .errors import ConvergenceWarning, InputError
+from .identity import data_digest, digest_tensor, fingerprint, model_description
 from .models.data import ModelData
 from .models.material import MaterialModel, from_preset
 from .observations import Observations
@@ -80,7 +81,7 @@ def infer(model: "Callable | str | dict", observations: "Observations | ModelDat
         data = ModelData.from_observations(observations, dtype=dtype, device=device)
     else:
         raise InputError(f"observations must be Observations, got {type(observations).__name__}",
-                         fix="bb.io.load_capture(path).observations")
+                         fix="bb.io.load_capture(path)")
     auto = steps == "auto"
     if isinstance(steps, str) and not auto:
         raise InputError(f"steps must be a positive integer or \"auto\", got {steps!r}")
@@ -99,11 +100,14 @@ def infer(model: "Callable | str | dict", observations: "Observations | ModelDat
             raise InputError(f"z0 has shape {tuple(z0.shape)}, expected [particles, {pot.dim}]",
                              fix="pass a posterior's z from the same model")
         kw["particles"] = z0.shape[0]
-    res = run(smp, pot, seed=seed, checkpoint=checkpoint, progress=progress, callbacks=callbacks, z0=z0, **kw)
+    identity = fingerprint(data=data_digest(data), model=model_description(model), seed=seed,
+                           start="prior" if z0 is None else digest_tensor(z0))
+    res = run(smp, pot, seed=seed, checkpoint=checkpoint, progress=progress, callbacks=callbacks, z0=z0,
+              identity=identity, **kw)
     with torch.no_grad():
         energies = pot.energy(res.z, jacobian=False)
     meta = {"sampler": smp.name, "params": smp.params(), "run": vars(cfg), "seed": seed,
-            "seconds": res.seconds, "evaluations": res.evaluations, "steps": res.steps,
+            "evaluations": res.evaluations, "steps": res.steps, "identity": identity,
             "model": model.to_dict() if isinstance(model, MaterialModel) else getattr(model, "__name__", str(model)),
             "observations": observations.meta if isinstance(observations, Observations) else {},
             "surface": {"size": data.observations.surface.size, "grid": data.observations.surface.grid},
@@ -111,7 +115,8 @@ def infer(model: "Callable | str | dict", observations: "Observations | ModelDat
     if isinstance(model, MaterialModel) and model.sigma == "auto":
         s = model.noise_sigma(data, pot.to_constrained(res.z))
         meta["noise_sigma"] = float(s.mean())
-    post = Posterior(pot.to_constrained(res.z), energies, z=res.z, meta=meta, potential=pot, model=model)
+    post = Posterior(pot.to_constrained(res.z), energies, z=res.z, meta=meta, potential=pot, model=model,
+                     log={"seconds": res.seconds, "resumed_from": res.resumed_from, "steps": res.steps})
     if map_steps is None:
         map_steps = min(300, res.steps)
     if map_steps:

@@ -44,7 +44,8 @@ class Posterior:
     """
 
     def __init__(self, particles: dict[str, Tensor], energies: Tensor, *, z: Tensor | None = None,
-                 meta: dict | None = None, potential=None, model=None, map_values: dict | None = None):
+                 meta: dict | None = None, potential=None, model=None, map_values: dict | None = None,
+                 log: dict | None = None):
         if not particles:
             raise InputError("a posterior needs at least one site")
         ns = {v.shape[0] for v in particles.values()}
@@ -56,6 +57,9 @@ class Posterior:
         self.meta = dict(meta or {})
         self.potential, self.model = potential, model
         self.map_values = None if map_values is None else {k: v.detach() for k, v in map_values.items()}
+        #: this session's run log (wall time, the step it resumed from): not saved in the file, which holds
+        #: only what determines the posterior, so a resumed run writes the same bytes as an uninterrupted one
+        self.log = dict(log or {})
 
     @property
     def noise_sigma(self) -> float | None:
@@ -183,7 +187,11 @@ class Posterior:
 
     # ------------------------------------------------------------------ files
     def save(self, path) -> Path:
-        """Write ``path`` (``.safetensors``): particles, energies, unconstrained ``z`` and the metadata as JSON."""
+        """Write ``path`` (``.safetensors``): particles, energies, unconstrained ``z`` and the metadata as JSON.
+
+        The file holds only what determines the posterior (no wall times: those are in :attr:`log`), so
+        the same run gives the same bytes, interrupted and resumed or not.
+        """
         from safetensors.torch import save_file
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
@@ -193,7 +201,12 @@ class Posterior:
             t["z"] = self.z.contiguous().cpu()
         for k, v in (self.map_values or {}).items():
             t[f"map/{k}"] = v.contiguous().cpu()
-        save_file(t, str(path), metadata={"format": FORMAT, "meta": json.dumps(self.meta, default=str)})
+        from .io.outputs import atomic_path
+        with atomic_path(path) as tmp:     # a complete file or none, mode 0644 (safetensors alone writes 0600)
+            # one metadata entry: safetensors keeps metadata in a hash map, so with two entries their order
+            # in the header (and the file's bytes) would change from one process to the next
+            save_file(t, str(tmp), metadata={"bayes-brdf": json.dumps({"format": FORMAT, "meta": self.meta},
+                                                                      default=str, sort_keys=True)})
         return path
 
     @classmethod
@@ -209,6 +222,12 @@ class Posterior:
                 t = {k: f.get_tensor(k) for k in f.keys()}
         except Exception as e:  # noqa: BLE001
             raise InputError(f"unreadable posterior file ({type(e).__name__})", where=path) from None
+        if "bayes-brdf" in md:        # since 0.1: one JSON entry; before: "format" and "meta" entries
+            try:
+                md = json.loads(md["bayes-brdf"])
+                md["meta"] = json.dumps(md.get("meta", {}))
+            except (TypeError, ValueError):
+                md = {}
         if md.get("format") != FORMAT:
             raise InputError("not a bayes-brdf posterior file", where=path)
         parts = {k[5:]: v for k, v in t.items() if k.startswith("site/")}

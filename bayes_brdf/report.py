@@ -69,7 +69,6 @@ class Report:
                 + "\n".join(self.blocks) + "</body></html>")
 
     def write(self, path) -> Path:
-        path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text(self.html(), encoding="utf-8")
-        return path
+        from .io.outputs import write_text
+
+        return write_text(path, self.html())

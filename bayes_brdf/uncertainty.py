@@ -181,9 +181,31 @@ def _scalar(img) -> Tensor:
     return t.mean(-1) if t.dim() == 3 else t
 
 
-def show_map(fig, ax, value, vmin: float, vmax: float, title: str = "", unit: str = "", fontsize: int = 9):
-    """Draw a value map on ``ax`` with the one colormap and a colour bar (shared by every figure)."""
+#: colours of pixels a map leaves out (never a colour of :data:`CMAP`): see ``masks`` of :func:`show_map`
+MASK_COLOURS = ("#22c3e6", "#8a8a8a", "#3ddc84")
+
+
+def show_map(fig, ax, value, vmin: float, vmax: float, title: str = "", unit: str = "", fontsize: int = 9,
+             masks: dict | None = None):
+    """Draw a value map on ``ax`` with the one colormap and a colour bar (shared by every figure).
+
+    ``masks`` ``{label: [H, W] bool}``: pixels left out of the values (clipped in the photo, outside
+    the sample, ...), drawn in flat colours that the colormap never uses (:data:`MASK_COLOURS`) and
+    named in a legend, so that a left-out pixel is never read as a value of 0.
+    """
+    import matplotlib.colors as mcolors
+    from matplotlib.patches import Patch
+
     im = ax.imshow(value, cmap=CMAP, vmin=vmin, vmax=vmax if vmax > vmin else vmin + 1e-12, interpolation="nearest")
+    handles = []
+    for (label, m), colour in zip((masks or {}).items(), MASK_COLOURS):
+        m = np.asarray(torch.as_tensor(m).detach().cpu().bool())
+        if not m.any():
+            continue
+        over = np.zeros((*m.shape, 4))
+        over[m] = mcolors.to_rgba(colour)
+        ax.imshow(over, interpolation="nearest")
+        handles.append(Patch(facecolor=colour, label=f"{label} ({int(m.sum())} px)"))
     ax.set_axis_off()
     if title:
         ax.set_title(title, fontsize=fontsize)
@@ -191,14 +213,19 @@ def show_map(fig, ax, value, vmin: float, vmax: float, title: str = "", unit: st
     cb.ax.tick_params(labelsize=fontsize - 2)
     if unit:
         cb.set_label(unit, fontsize=fontsize - 1)
+    if handles:
+        ax.legend(handles=handles, loc="upper center", bbox_to_anchor=(0.5, -0.01), fontsize=fontsize - 2,
+                  frameon=False, ncol=1, handlelength=1.0)
     return im
 
 
 def write_map(path, value, *, title: str = "", vmin: float = 0.0, vmax: float | None = None,
-              unit: str = "", exr: bool = True) -> Path:
+              unit: str = "", exr: bool = True, masks: dict | None = None) -> Path:
     """Write ``value`` (``[H, W]``, ``[H, W, C]`` or channel-first ``[C, H, W]``) as ``path.exr`` and a
     colour-mapped ``path.png`` with a colour bar (channels are averaged for the PNG). The EXR is RGB: one
-    channel is repeated, two are stored as R, G with B = 0. Returns the PNG path."""
+    channel is repeated, two are stored as R, G with B = 0. ``masks`` ``{label: [H, W] bool}`` are pixels
+    without a value: NaN in the EXR, a flat colour named in the PNG's legend (:func:`show_map`).
+    Both files are written atomically. Returns the PNG path."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -211,6 +238,11 @@ def write_map(path, value, *, title: str = "", vmin: float = 0.0, vmax: float | 
     if t.dim() != 2 and not (t.dim() == 3 and t.shape[-1] <= 3):
         raise InputError(f"write_map: a map is [H, W], [H, W, C] or [C, H, W] with C <= 3, got {tuple(t.shape)}",
                          where=path, fix="write one channel group per call")
+    if masks:
+        left_out = torch.zeros(t.shape[:2], dtype=torch.bool)
+        for m in masks.values():
+            left_out |= torch.as_tensor(m).detach().cpu().bool()
+        t = t.masked_fill(left_out[..., None] if t.dim() == 3 else left_out, float("nan"))
     if exr:
         e = t[..., None] if t.dim() == 2 else t
         if e.shape[-1] == 1:   # grey: the value in R, G and B (every viewer shows it)
@@ -223,10 +255,13 @@ def write_map(path, value, *, title: str = "", vmin: float = 0.0, vmax: float | 
         fin = s[np.isfinite(s)]
         vmax = float(np.percentile(fin, 99)) if fin.size else 1.0
     vmax = vmax if vmax > vmin else vmin + 1e-12
-    fig, ax = plt.subplots(figsize=(3.6, 3.0), dpi=100)
-    show_map(fig, ax, s, vmin, vmax, title, unit)
+    legend_rows = sum(bool(torch.as_tensor(m).any()) for m in (masks or {}).values())
+    fig, ax = plt.subplots(figsize=(3.6, 3.0 + 0.22 * legend_rows), dpi=100)
+    show_map(fig, ax, np.ma.masked_invalid(s), vmin, vmax, title, unit, masks=masks)
     fig.tight_layout()
     png = path.with_suffix(".png")
-    fig.savefig(png)
+    from .io.outputs import atomic_path
+    with atomic_path(png) as tmp:
+        fig.savefig(tmp)
     plt.close(fig)
     return png

@@ -1,9 +1,6 @@
 """``bayes-brdf compare``: the paper's Table 1 (samplers on a 2-D posterior with an exact answer)."""
 from __future__ import annotations
 
-import json
-from pathlib import Path
-
 from .common import float_list, key_value, positive_float, positive_int
 
 
@@ -35,6 +32,10 @@ def add_parser(sub):
 def run(a) -> int:
     from ..errors import InputError
     from ..experiments.table1 import Table1Setup, compare, markdown
+    from ..io.outputs import check_file_target, write_json
+
+    if a.json:
+        check_file_target(a.json, option="--json")        # before the minutes of sampling
 
     if not 0 <= a.albedo <= 1 or not 0.05 <= a.roughness <= 1:
         raise InputError(f"--albedo must be in [0, 1] and --roughness in [0.05, 1], got {a.albedo}, {a.roughness}")
@@ -54,9 +55,7 @@ def run(a) -> int:
                     progress=False)
     print(markdown(table))
     if a.json:
-        p = Path(a.json)
-        p.parent.mkdir(parents=True, exist_ok=True)
         rows = {k: v for k, v in table.items() if not k.startswith("_")}
-        p.write_text(json.dumps({**rows, "_truth": table["_truth"]}, indent=2))
+        p = write_json(a.json, {**rows, "_truth": table["_truth"]})
         print(f"wrote {p}")
     return 0

@@ -33,6 +33,8 @@ def run(a) -> int:
         raise InputError(f"unknown material '{a.material}'", fix=f"use one of {', '.join(sorted(MATERIALS))}")
     if a.rounds < 0:
         raise InputError(f"--rounds must be >= 0, got {a.rounds}")
+    from ..io.outputs import check_folder
+    check_folder(a.out)                                  # before minutes of work
     path = demo(a.out, material=a.material, resolution=a.resolution, views=a.views, steps=a.steps, rounds=a.rounds,
                 k=a.k, seed=a.seed, progress=sys.stderr.isatty())
     print(f"demo: report at {path.resolve()} (open it in a browser)")

@@ -21,6 +21,8 @@ def add_parser(sub):
                    help="override a preset setting, e.g. steps=2000 (repeatable)")
     e.add_argument("--seed", type=int, default=0, help="random seed (default: %(default)s)")
     e.add_argument("--out", default=None, help="output folder (default: out/experiments/NAME)")
+    e.add_argument("--json", action="store_true",
+                   help="also print the summary numbers as JSON on stdout (they are always in the folder's JSON)")
     e.set_defaults(func=run)
 
 
@@ -34,9 +36,11 @@ def run(a) -> int:
             for p, cfg in m.PRESETS.items():
                 print(f"    {p}: " + ", ".join(f"{k}={v}" for k, v in cfg.items()))
         return 0
+    from ..io.outputs import check_folder
+
     m = get(a.name)
     cfg = preset(m, a.preset, dict(a.set))
-    out = Path(a.out or f"out/experiments/{a.name}")
+    out = check_folder(a.out or f"out/experiments/{a.name}")
     t = time.perf_counter()
     res = m.run(out, preset=a.preset, seed=a.seed, progress=sys.stderr.isatty(), **dict(a.set))
     secs = time.perf_counter() - t
@@ -44,6 +48,6 @@ def run(a) -> int:
     print(f"{a.name} ({a.preset}, {', '.join(f'{k}={v}' for k, v in cfg.items())}) in {secs:.0f} s -> {out}/: "
           f"{', '.join(files)}")
     summary = res.get("summary") if isinstance(res, dict) else None
-    if summary:
+    if summary and a.json:
         print(json.dumps(summary, indent=1, default=float))
     return 0

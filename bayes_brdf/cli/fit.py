@@ -11,13 +11,12 @@ only bound the radiance from below.
 """
 from __future__ import annotations
 
-import json
 import sys
 import time
 from pathlib import Path
 
-from .common import int_list
-from .infer import add_sampling_args, convergence_note, sample, write_posterior
+from .common import check_views, view_list
+from .infer import add_sampling_args, convergence_note, load, sample, timing, write_posterior
 
 
 def add_parser(sub):
@@ -26,12 +25,17 @@ def add_parser(sub):
                                    "correlation / coverage numbers in summary.json. A rerun resumes the sampler "
                                    "from the checkpoint in --out.")
     add_sampling_args(f, "out/fit")
-    f.add_argument("--holdout", type=int_list, default=None,
+    f.add_argument("--holdout", type=view_list, default=None,
                    help="comma-separated view indices to hold out (default: every view not in --views)")
     f.set_defaults(func=run)
 
 
 def _split(n: int, views, holdout):
+    if views is None and holdout is not None:
+        views = [i for i in range(n) if i not in holdout]
+        if not views:
+            from ..errors import InputError
+            raise InputError("--holdout holds out every view: nothing is left to fit", fix="hold out fewer views")
     fit = list(range(n)) if views is None else list(views)
     held = [i for i in range(n) if i not in fit] if holdout is None else list(holdout)
     from ..errors import InputError
@@ -69,20 +73,26 @@ def heldout_report(post, obs, out: Path, fitted_sigma: float | None = None) -> d
     pred = render(post.maps("map"), obs.views, obs.surface)[0]
     y = obs.images.to(pred)
     err = (pred - y).abs()
-    valid = GBuffer.build(obs.views, obs.surface).mask
-    n_sat = int((obs.saturated & valid).sum()) if obs.saturated is not None else 0
+    inside = GBuffer.build(obs.views, obs.surface).mask
+    valid = inside.clone()
+    sat = obs.saturated & inside if obs.saturated is not None else torch.zeros_like(inside)
+    n_sat = int(sat.sum())
     if obs.mask is not None:
         valid &= obs.mask
-    if obs.saturated is not None:
-        valid &= ~obs.saturated
-    vmax_err = float(torch.quantile(err[valid].flatten()[:2_000_000], 0.99)) if bool(valid.any()) else 1.0
-    vmax_std = float(torch.quantile(std[valid].flatten()[:2_000_000], 0.99)) if bool(valid.any()) else 1.0
+    valid &= ~sat
+    # one colour range for a view's error and std maps (and for every held-out view): they are compared by eye
+    both = torch.cat([err[valid].flatten()[:1_000_000], std[valid].flatten()[:1_000_000]])
+    vmax = float(torch.quantile(both, 0.99)) if both.numel() else 1.0
     per_view = []
     for j, v in enumerate(obs.views):
         tag = f"view_{obs.meta.get('indices', list(range(len(obs))))[j]:02d}"
-        m = valid[j][..., None].to(err)
-        write_map(out / "heldout" / f"{tag}_std", std[j] * m, title=f"{tag}: image-space std (Eq. 11)", vmax=vmax_std)
-        write_map(out / "heldout" / f"{tag}_error", err[j] * m, title=f"{tag}: |MAP render - photo|", vmax=vmax_err)
+        masks = {"clipped in the photo (left out)": sat[j], "not the sample": ~inside[j]}
+        if obs.mask is not None:
+            masks["masked out"] = inside[j] & ~obs.mask[j] & ~sat[j]
+        write_map(out / "heldout" / f"{tag}_std", std[j], title=f"{tag}: image-space std (Eq. 11)", vmax=vmax,
+                  masks=masks)
+        write_map(out / "heldout" / f"{tag}_error", err[j], title=f"{tag}: |MAP render - photo|", vmax=vmax,
+                  masks=masks)
         write_png(out / "heldout" / f"{tag}_map_render.png", pred[j].clamp(0, 1).cpu().numpy())
         write_png(out / "heldout" / f"{tag}_photo.png", y[j].clamp(0, 1).cpu().numpy())
         vm = valid[j]
@@ -95,7 +105,7 @@ def heldout_report(post, obs, out: Path, fitted_sigma: float | None = None) -> d
     if fitted_sigma:
         F2, _, _ = predictive_cdf(post, obs.views, obs.images, obs.surface, sigma=fitted_sigma)
         extra = {"fitted_sigma": fitted_sigma, "coverage_with_fitted_sigma": coverage(F2[vv])}
-    return {**extra,"pixels": int(valid.sum()), "saturated_left_out": n_sat,
+    return {**extra, "pixels": int(valid.sum()), "saturated_left_out": n_sat, "map_range": [0.0, vmax],
             "mean_abs_error": float(err[vv].mean()), "mean_std": float(std[vv].mean()),
             **correlations(std[vv], err[vv]),
             "correlation_posterior_mean": correlations(std[vv], (mean - y).abs()[vv]),
@@ -105,13 +115,15 @@ def heldout_report(post, obs, out: Path, fitted_sigma: float | None = None) -> d
 def run(a) -> int:
     import torch
 
-    from ..io import load_capture
+    from ..io.outputs import write_json
 
     t0 = time.perf_counter()
-    full = load_capture(a.capture, resolution=a.resolution)
+    _, full, out = load(a, "fit", full=True)
+    check_views(a.holdout, len(full), "--holdout")
     fit_idx, held_idx = _split(len(full), a.views, a.holdout)
+    if a.views is None and a.holdout is not None:
+        a.views = fit_idx          # --holdout alone: fit the other views (and say so in the run's fingerprint)
     obs = full.subset(fit_idx)
-    out = Path(a.out)
     times = {"load": time.perf_counter() - t0}
     t = time.perf_counter()
     post = sample(a, obs, out)
@@ -120,7 +132,8 @@ def run(a) -> int:
     mean_std = write_posterior(post, out)
     times["write_maps"] = time.perf_counter() - t
     summary = {"capture": str(a.capture), "fit_views": fit_idx, "heldout_views": held_idx,
-               "resolution": a.resolution, "model": post.meta["model"], "sampler": post.meta["sampler"],
+               "resolution": obs.resolution[0], "resumed_from": post.log.get("resumed_from", 0),
+               "model": post.meta["model"], "sampler": post.meta["sampler"],
                "params": post.meta["params"], "run": post.meta["run"], "seed": a.seed,
                "mean_param_std": mean_std, "best_energy": float(post.energies.min()),
                "device": str(torch.device(a.device)), "diagnostics": post.diagnostics}
@@ -134,15 +147,17 @@ def run(a) -> int:
         times["heldout"] = time.perf_counter() - t
     times["total"] = time.perf_counter() - t0
     summary["seconds"] = times
-    (out / "summary.json").write_text(json.dumps(summary, indent=2, default=str))
-    msg = f"{post} from views {fit_idx} in {times['fit']:.0f} s"
+    write_json(out / "summary.json", summary)
+    msg = f"{post} from views {fit_idx} {timing(post)}"
     if held_idx:
         h = summary["heldout"]
         msg += (f"; held-out views {held_idx}: std vs |error| Pearson {h['pearson']:.2f}, Spearman "
                 f"{h['spearman']:.2f}; coverage 50% {h['coverage']['50']:.2f}, 90% {h['coverage']['90']:.2f} "
                 f"(with the fitted noise {h['fitted_sigma']:.3f} instead of sigma {summary['noise_sigma']:.3g}: "
                 f"{h['coverage_with_fitted_sigma']['50']:.2f}, {h['coverage_with_fitted_sigma']['90']:.2f})")
-    print(msg + f" -> {out}/ (summary.json, map/, mean/, std/, heldout/)")
+    else:
+        msg += "; every view was fitted, so nothing is held out (give --views or --holdout to check against photos)"
+    print(msg + f" -> {out}/ (summary.json, map/, mean/, std/{', heldout/' if held_idx else ''})")
     hint = sigma_hint(summary)
     if hint:
         print(hint)

@@ -1,15 +1,13 @@
 """``bayes-brdf infer CAPTURE``: sample a material model's posterior with any sampler, write what it found."""
 from __future__ import annotations
 
-import json
 import sys
 import time
 import warnings
 from pathlib import Path
 
-from ..errors import ConvergenceWarning
-
-from .common import int_list, key_value, positive_int, steps_arg
+from .common import check_views, key_value, particles_arg, positive_int, steps_arg, view_list
+from .run_folder import claim_folder, log_run, output_folder
 
 
 def add_sampling_args(f, default_out: str):
@@ -18,11 +16,12 @@ def add_sampling_args(f, default_out: str):
     f.add_argument("--model", default="per_texel", help="model preset name or TOML path (default: %(default)s)")
     f.add_argument("--sampler", default=None,
                    help="sampler preset name or TOML path (default: spos, calibrated from 2-D to per-texel maps)")
-    f.add_argument("--views", type=int_list, default=None, help="comma-separated view indices to fit (default: all)")
-    f.add_argument("--resolution", type=positive_int, default=128,
-                   help="resample the photos to this resolution; a per_texel model uses as many texels "
-                        "(default: %(default)s)")
-    f.add_argument("--particles", type=positive_int, default=None, help="override the preset's particle count")
+    f.add_argument("--views", type=view_list, default=None, help="comma-separated view indices to fit (default: all)")
+    f.add_argument("--resolution", type=positive_int, default=None,
+                   help="resample the photos to this resolution, at most their own; a per_texel model uses as "
+                        "many texels (default: the photos' own, at most 128)")
+    f.add_argument("--particles", type=particles_arg, default=None,
+                   help="override the preset's particle count (at least 2)")
     f.add_argument("--steps", type=steps_arg, default=None,
                    help="override the preset's step count, or 'auto': run until the convergence checks pass "
                         "(at most 4x the preset's)")
@@ -32,7 +31,11 @@ def add_sampling_args(f, default_out: str):
                    help="override a model option, e.g. sigma=0.02 (repeatable)")
     f.add_argument("--seed", type=int, default=0, help="random seed (default: %(default)s)")
     f.add_argument("--device", default="cpu", help="torch device, e.g. cpu or cuda (default: %(default)s)")
-    f.add_argument("--out", default=default_out, help="output folder (default: %(default)s)")
+    f.add_argument("--out", default=None,
+                   help=f"output folder (default: {default_out}/CAPTURE, named after the capture); a rerun of the "
+                        "same command resumes there, another run is refused")
+    f.add_argument("--overwrite", action="store_true",
+                   help="start over in --out even if it holds another (or the same) run")
 
 
 def add_parser(sub):
@@ -46,22 +49,66 @@ def add_parser(sub):
     f.set_defaults(func=run)
 
 
+def load(a, command: str, full: bool = False):
+    """Check the output folder, load the capture (``--resolution``: at most the photos' own), check ``--views``.
+
+    Returns the observations of the fitted views (and, with ``full``, all of them too).
+    """
+    from ..io import load_capture
+
+    out = output_folder(a, command)                  # before any work: one line if it cannot be written
+    cap = load_capture(a.capture, resolution=a.resolution, max_resolution=128)
+    check_views(a.views, len(cap))
+    obs = cap if a.views is None else cap.subset(a.views)
+    return (obs, cap, out) if full else (obs, out)
+
+
 def sample(a, obs, out: Path):
-    """Sample the posterior for the parsed arguments ``a`` on ``obs``; checkpoints (and resumes) in ``out``."""
+    """Sample the posterior for the parsed arguments ``a`` on ``obs``; checkpoints (and resumes) in ``out``.
+
+    ``out`` must hold this run or nothing (:func:`~bayes_brdf.cli.run_folder.claim_folder`); the
+    invocation is appended to ``out/run_log.jsonl``.
+    """
+    from ..errors import ConvergenceWarning
     from ..inference import infer
     from ..presets import load_preset
+    from ..samplers.driver import Interrupted
 
+    status = claim_folder(a, obs)
+    if status == "overwritten":
+        print(f"bayes-brdf: --overwrite: starting over in {out}", file=sys.stderr)
     table = dict(load_preset("models", a.model))
     table.update(dict(a.model_param))
     if table.get("model") == "per_texel" and "resolution" not in dict(a.model_param):
-        table["resolution"] = a.resolution
-    sampler = a.sampler or "spos"
-    out.mkdir(parents=True, exist_ok=True)
-    with warnings.catch_warnings():         # the CLI says it in its own terms (convergence_note)
-        warnings.simplefilter("ignore", ConvergenceWarning)
-        return infer(table, obs, sampler, seed=a.seed, particles=a.particles, steps=a.steps,
-                     params=dict(a.param) or None, checkpoint=out / "checkpoint.pt", progress=sys.stderr.isatty(),
-                     device=a.device)
+        table["resolution"] = obs.resolution[0]
+    t = time.perf_counter()
+    try:
+        with warnings.catch_warnings():         # the CLI says it in its own terms (convergence_note)
+            warnings.simplefilter("ignore", ConvergenceWarning)
+            post = infer(table, obs, a.sampler or "spos", seed=a.seed, particles=a.particles, steps=a.steps,
+                         params=dict(a.param) or None, checkpoint=out / "checkpoint.pt",
+                         progress=sys.stderr.isatty(), device=a.device)
+    except Interrupted as e:
+        log_run(out, {"status": f"interrupted at step {e.step}", "wall_seconds": time.perf_counter() - t})
+        raise
+    lg = post.log
+    if lg.get("resumed_from") and lg["resumed_from"] >= lg.get("steps", 0):
+        print(f"bayes-brdf: {out} holds this run, finished ({lg['steps']} steps): rewriting its results",
+              file=sys.stderr)
+    log_run(out, {"status": "finished", "resumed_from": lg.get("resumed_from", 0), "steps": lg.get("steps"),
+                  "sampling_seconds": lg.get("seconds"), "wall_seconds": time.perf_counter() - t})
+    return post
+
+
+def timing(post) -> str:
+    """``"in 41.2 s"``, or for a resumed run ``"in 41.2 s of sampling (resumed at step 600)"``."""
+    lg = post.log
+    secs = lg.get("seconds", 0.0)
+    if lg.get("resumed_from"):
+        if lg["resumed_from"] >= lg.get("steps", 0):
+            return f"sampled earlier in {secs:.1f} s"
+        return f"in {secs:.1f} s of sampling (resumed at step {lg['resumed_from']})"
+    return f"in {secs:.1f} s"
 
 
 def convergence_note(post) -> str:
@@ -72,7 +119,7 @@ def convergence_note(post) -> str:
     if not d or d.get("converged", True):
         return ""
     steps = int(d.get("steps") or post.meta.get("steps") or 0)
-    return "warning: " + Diagnostics(d["checks"], steps).message(f"rerun with --steps {2 * steps} (and a new --out)")
+    return "warning: " + Diagnostics(d["checks"], steps).message(f"rerun with --steps {2 * steps} --overwrite (or a new --out)")
 
 
 def write_posterior(post, out: Path) -> dict:
@@ -93,24 +140,22 @@ def write_posterior(post, out: Path) -> dict:
 def run(a) -> int:
     import torch
 
-    from ..io import load_capture
+    from ..io.outputs import write_json
 
-    obs = load_capture(a.capture, resolution=a.resolution)
-    if a.views is not None:
-        obs = obs.subset(a.views)
-    out = Path(a.out)
+    obs, out = load(a, "infer")
     t = time.perf_counter()
     post = sample(a, obs, out)
     secs = time.perf_counter() - t
     mean_std = write_posterior(post, out)
-    summary = {"capture": str(a.capture), "views": a.views, "model": post.meta["model"],
-               "sampler": post.meta["sampler"], "params": post.meta["params"], "run": post.meta["run"],
-               "seed": a.seed, "seconds": post.meta["seconds"], "wall_seconds": secs,
+    summary = {"capture": str(a.capture), "views": a.views, "resolution": obs.resolution[0],
+               "model": post.meta["model"], "sampler": post.meta["sampler"], "params": post.meta["params"],
+               "run": post.meta["run"], "seed": a.seed, "sampling_seconds": post.log.get("seconds"),
+               "resumed_from": post.log.get("resumed_from", 0), "wall_seconds": secs,
                "evaluations": post.meta["evaluations"], "mean_std": mean_std,
                "best_energy": float(post.energies.min()), "device": str(torch.device(a.device)),
                "diagnostics": post.diagnostics}
-    (out / "summary.json").write_text(json.dumps(summary, indent=2, default=str))
-    print(f"{post} from {len(obs)} views in {post.meta['seconds']:.1f} s -> {out}/ "
+    write_json(out / "summary.json", summary)
+    print(f"{post} from {len(obs)} views {timing(post)} -> {out}/ "
           f"(posterior.safetensors, mean/, map/, std/, summary.json)")
     note = convergence_note(post)
     if note:

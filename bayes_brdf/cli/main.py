@@ -21,7 +21,9 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
 import os
+import signal
 import sys
 from pathlib import Path
 
@@ -40,10 +42,17 @@ class _Parser(argparse.ArgumentParser):
     """argparse with one-line errors (exit 2) instead of usage dumps."""
 
     def error(self, message):  # noqa: D401
-        self.exit(2, f"{self.prog}: error: {message}; see '{self.prog} --help'\n")
+        shown = "".join(c if c.isprintable() else repr(c)[1:-1] for c in message)   # one line, always
+        self.exit(2, f"{self.prog}: error: {shown}; see '{self.prog} --help'\n")
 
 
 _positive_int, _positive_float = positive_int, positive_float
+
+
+def threading_main() -> bool:
+    import threading
+
+    return threading.current_thread() is threading.main_thread()
 
 
 def _views_from_spec(spec: str, a) -> list:
@@ -81,7 +90,7 @@ def _load_material(name: str, a):
     if name not in MATERIALS:
         raise InputError(f"'{name}' is neither a procedural material nor a maps folder",
                          fix=f"use one of {', '.join(sorted(MATERIALS))} or a folder with albedo/roughness/specular/normal maps")
-    return make_material(name, a.resolution, seed=a.seed)
+    return make_material(name, a.resolution or 128, seed=a.seed)
 
 
 def cmd_render(a) -> int:
@@ -93,11 +102,15 @@ def cmd_render(a) -> int:
     from ..render.gbuffer import GBuffer
     from ..render.shade import shade
     from ..render.surface import PlanarSample
+    from ..io.outputs import check_folder
 
+    check_folder(a.out)
     if a.capture:
-        cap = load_capture(a.capture, resolution=a.resolution)
+        cap = load_capture(a.capture, resolution=a.resolution, max_resolution=128)
         views, surface = cap.views, cap.surface
+        a.resolution = a.resolution or cap.resolution[0]
     else:
+        a.resolution = a.resolution or 128
         views, surface = _views_from_spec(a.views, a), PlanarSample(a.sample_size)
     maps = _load_material(a.material, a).to(dtype=torch.float32, device=a.device)
     out = Path(a.out)
@@ -146,7 +159,8 @@ def build_parser() -> argparse.ArgumentParser:
                           "(default: %(default)s)")
     src.add_argument("--capture", help="render at the views (poses, lights, sample size) of this capture instead")
     r.add_argument("--seed", type=int, default=0, help="material and view-set seed (default: %(default)s)")
-    r.add_argument("--resolution", type=_positive_int, default=128, help="map and image resolution (default: %(default)s)")
+    r.add_argument("--resolution", type=_positive_int, default=None,
+                   help="map and image resolution (default: 128; with --capture its photos' own, at most 128)")
     r.add_argument("--camera", choices=["perspective", "rectified"], default="perspective",
                    help="camera model for generated views (default: %(default)s)")
     r.add_argument("--radius", type=_positive_float, default=3.0, help="camera distance to the sample centre (default: %(default)s)")
@@ -178,12 +192,46 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+def _sigterm(signum, frame):
+    raise KeyboardInterrupt   # the driver saves its checkpoint on it, as on Ctrl-C
+
+
+class _StderrLines(logging.Handler):
+    """Log records as ``bayes-brdf: message`` on the current ``sys.stderr`` (looked up per line)."""
+
+    def emit(self, record):
+        print(f"bayes-brdf: {record.getMessage()}", file=sys.stderr)
+
+
+def _log_to_stderr():
+    """The library's info lines (``resuming from step N of M ...``, progress of long work) on stderr."""
+    lg = logging.getLogger("bayes_brdf")
+    if not any(isinstance(h, _StderrLines) for h in lg.handlers):
+        lg.addHandler(_StderrLines())
+    lg.setLevel(logging.INFO)
+    lg.propagate = False
+
+
 def main(argv=None) -> int:
     parser = build_parser()
-    a = parser.parse_args(argv)
+    try:
+        a = parser.parse_args(argv)
+    except SystemExit as e:        # --help (0) or a one-line usage error (2): a code, also when called in-process
+        return int(e.code or 0)
     if not getattr(a, "command", None):
         parser.print_help()
         return 2
+    _log_to_stderr()
+    if threading_main():
+        signal.signal(signal.SIGTERM, _sigterm)
+    if hasattr(a, "device"):
+        import torch
+
+        try:
+            torch.device(a.device)
+        except (RuntimeError, ValueError):
+            print(f"bayes-brdf: error: --device {a.device!r} is not a torch device; use cpu or cuda", file=sys.stderr)
+            return 2
     if getattr(a, "device", "cpu").startswith("cuda"):
         import torch
 
@@ -195,8 +243,15 @@ def main(argv=None) -> int:
     except InputError as e:
         print(f"bayes-brdf: error: {e}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print("bayes-brdf: interrupted", file=sys.stderr)
+    except KeyboardInterrupt as e:
+        from ..samplers.driver import Interrupted
+
+        if isinstance(e, Interrupted) and e.checkpoint is not None:
+            print(f"bayes-brdf: interrupted at step {e.step} of {e.steps}; checkpoint saved to {e.checkpoint}; "
+                  "rerun the same command to resume", file=sys.stderr)
+        else:
+            print("bayes-brdf: interrupted (no sampler was running, nothing to resume from: rerun the command)",
+                  file=sys.stderr)
         return 130
     except BrokenPipeError:  # e.g. `bayes-brdf inspect X | head`
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())

@@ -7,7 +7,7 @@ import time
 from pathlib import Path
 
 from .common import positive_int
-from .infer import add_sampling_args, sample
+from .infer import add_sampling_args, load, sample
 
 
 def add_parser(sub):
@@ -92,7 +92,9 @@ def _plot(path, cands, scores, picks, title):
     fig.colorbar(sc, ax=ax, fraction=0.046, pad=0.04, label="mutual information (nats)")
     ax.legend(fontsize=7, loc="lower right")
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    from ..io.outputs import atomic_path
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=110)
     plt.close(fig)
 
 
@@ -100,16 +102,14 @@ def run(a) -> int:
     from ..errors import InputError
     from ..guidance import recommend, score_views
     from ..guidance.scores import parse_noise_var
-    from ..io import load_capture
+    from ..io.outputs import write_json
     from ..posterior import Posterior
 
     nv = parse_noise_var(a.noise_var)           # checked before any fitting
     t0 = time.perf_counter()
-    full = load_capture(a.capture, resolution=a.resolution)
+    obs, full, out = load(a, "recommend", full=True)
     fitted = list(range(len(full))) if a.views is None else list(a.views)
-    obs = full.subset(fitted)
-    out = Path(a.out)
-    out.mkdir(parents=True, exist_ok=True)
+    cands, labels = _candidates(a.candidates, full, fitted)      # a bad --candidates fails before the fit
     if a.posterior:
         post = Posterior.load(a.posterior)
         if post.model is None:
@@ -121,7 +121,6 @@ def run(a) -> int:
         post = sample(a, obs, out)
         post.save(out / "posterior.safetensors")
     t_fit = time.perf_counter() - t0
-    cands, labels = _candidates(a.candidates, full, fitted)
     scores = None
     if a.method in ("mi", "std"):
         scores = score_views(post, cands, full.surface, estimator=a.estimator, seed=a.seed, noise_var=nv)
@@ -136,7 +135,7 @@ def run(a) -> int:
                           "pixels": int(scores.pixels[i])} for i in range(len(cands))]
         _plot(out / "candidates.png", cands, scores.mi.numpy() if a.method == "mi" else scores.mean_std.numpy(),
               rec.indices, f"{len(cands)} candidates, {a.k} recommended ({a.method})")
-    (out / "recommend.json").write_text(json.dumps(result, indent=2, default=str))
+    write_json(out / "recommend.json", result)
     what = "view" if a.candidates == "heldout" else "candidate"
     print(f"recommended ({a.method}, from {len(cands)} candidates): "
           + ", ".join(f"{what} {labels[i]}" + (f" (MI {float(scores.mi[i]):.0f} nats)" if scores is not None else "")

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import json
+import logging
 import math
 import sys
 from pathlib import Path
@@ -21,6 +22,12 @@ SURFACE = PlanarSample(2.0)
 #: the noise scale sigma_err of Eq. 2 the paper's figures use, pinned for the (noiseless) figure problems:
 #: the model default ``sigma = "auto"`` would infer the noise level, which on noiseless renders is its floor
 PAPER_SIGMA = 0.01
+
+
+def say(msg: str, *args) -> None:
+    """A progress line of long work (an experiment's rounds, a comparison's samplers) on the
+    ``bayes_brdf`` logger: the CLI shows it on stderr; a Python caller sees it once logging is set up."""
+    logging.getLogger("bayes_brdf").info(msg, *args)
 
 
 def synthetic(material: str = "wood", resolution: int = 32, views: int = 10, *, seed: int = 0,
@@ -70,18 +77,19 @@ def save_figure(fig, path, *, dpi: int = 110, tight: bool = False) -> Path:
     """Write ``fig`` to ``path`` (PNG; folders created) and close it."""
     import matplotlib.pyplot as plt
 
-    Path(path).parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=dpi, **({"bbox_inches": "tight"} if tight else {}))
+    from ..io.outputs import atomic_path
+
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=dpi, **({"bbox_inches": "tight"} if tight else {}))
     plt.close(fig)
     return Path(path)
 
 
 def write_json(out, name: str, data: dict) -> Path:
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    p = out / f"{name}.json"
-    p.write_text(json.dumps(data, indent=2, default=float))
-    return p
+    """``out/name.json`` (atomically, numbers that are not JSON floats as floats)."""
+    from ..io.outputs import write_text
+
+    return write_text(Path(out) / f"{name}.json", json.dumps(data, indent=2, default=float))
 
 
 def figure_grid(path, panels, *, ncols: int | None = None, title: str = "", share: bool = True, vmax=None):

@@ -23,7 +23,7 @@ import time
 import numpy as np
 import torch
 
-from .common import FIGURE_SAMPLER, PAPER_SIGMA, figure_grid, line_plot, prepare, synthetic, write_json
+from .common import FIGURE_SAMPLER, PAPER_SIGMA, figure_grid, line_plot, prepare, say, synthetic, write_json
 from ..errors import InputError
 from ..inference import infer
 from ..models.data import ModelData
@@ -74,6 +74,7 @@ def run(out, preset: str = "small", seed: int = 0, progress: bool = False, **ove
         post = infer(model, obs, FIGURE_SAMPLER, map_steps=0, seed=seed, steps=int(cfg["steps"]), params=params,
                      z0=start(model, obs, n, seed, float(cfg["init_margin"])), progress=progress)
         std_r[n], std_a[n] = post.std("roughness")[0], post.std("albedo")
+        say("fig2: %d particles done in %.0f s", n, time.perf_counter() - t)
         rows[n] = {"seconds": time.perf_counter() - t,
                    "mean_std_roughness": float(std_r[n].mean()), "mean_std_albedo": float(std_a[n].mean()),
                    "median_std_roughness": float(std_r[n].median()), "median_std_albedo": float(std_a[n].median()),

@@ -34,7 +34,7 @@ import time
 import numpy as np
 import torch
 
-from .common import FIGURE_SAMPLER, PAPER_SIGMA, SURFACE, figure_grid, line_plot, prepare, synthetic, write_json
+from .common import FIGURE_SAMPLER, PAPER_SIGMA, SURFACE, figure_grid, line_plot, prepare, say, synthetic, write_json
 from .fig2_particles import _ints, start
 from ..errors import InputError
 from ..inference import infer
@@ -118,6 +118,7 @@ def run(out, preset: str = "small", seed: int = 0, progress: bool = False, **ove
                 std = post.std("roughness")[0]
                 mad = 1.4826 * (parts - parts.median(0).values).abs().median(0).values
                 ests.append(est), errs.append(err), stds.append(std)
+                say("fig3: %s, %d observations, seed %d done in %.0f s", config, k, s, time.perf_counter() - t)
                 row["runs"].append({"seed": s, "seconds": time.perf_counter() - t, "mean_std": float(std.mean()),
                                     "median_std": float(std.median()), "mean_error": float(err.mean()),
                                     "mean_robust_spread": float(mad.mean()),

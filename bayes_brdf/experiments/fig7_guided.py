@@ -30,7 +30,7 @@ from ..guidance.recommend import low_discrepancy
 from ..guidance.scores import parse_noise_var
 from ..models.material import per_texel
 from ..render.views import collocated_views, hemisphere_directions, light_stage_views
-from .common import FIGURE_SAMPLER, PAPER_SIGMA, SURFACE, line_plot, prepare, write_json
+from .common import FIGURE_SAMPLER, PAPER_SIGMA, SURFACE, line_plot, prepare, say, write_json
 
 DESCRIPTION = "guided capture (MI) vs low-discrepancy baseline: novel-view error and image-space std vs views"
 
@@ -81,6 +81,10 @@ def run_setting(cfg, kind: str, seed: int, out: Path | None = None, progress: bo
                                sampler=FIGURE_SAMPLER, map_steps=0,
                                particles=int(cfg["particles"]), seed=seed, initial_indices=init_idx,
                                evaluation=ev, progress=progress,
+                               on_round=lambda rec, post, m=method: say(
+                                   "fig7: %s, seed %d, %s: round %d done (%d views, novel error %.4f)", kind, seed,
+                                   METHODS[m], rec["round"], rec["views"],
+                                   rec["metrics"].get("novel_error", float("nan"))),
                                out=None if out is None else out / f"{kind}_{method}_seed{seed}",
                                score_kw={"estimator": cfg["estimator"], "noise_var": cfg["noise_var"]})
         res[method] = [{"views": rec["views"], **{k: rec["metrics"][k] for k in ("novel_error", "mean_image_std")},

@@ -40,6 +40,7 @@ from ..render.surface import PlanarSample
 from ..render.views import View
 from ..samplers import make_sampler
 from ..samplers.driver import run
+from .common import say
 
 SAMPLERS = ("spos", "svgd", "sgld", "emcee", "multistart_sgd", "nuts")
 #: the i.i.d. floor is averaged over this many runs (it is cheap), so that it is the floor, not a noisy estimate
@@ -138,7 +139,8 @@ def compare(setup: Table1Setup | None = None, samplers=SAMPLERS, *, runs: int = 
     errs = [_errors(iid_draws(q, particles, gen), q) for _ in range(n_iid)]
     out["iid"] = {"mse_mean": sum(e[0] for e in errs) / n_iid, "mse_var": sum(e[1] for e in errs) / n_iid,
                   "seconds": 0.0, "evaluations": 0, "runs": n_iid}
-    for name in samplers:
+    for i_s, name in enumerate(samplers):
+        say("compare: %s (%d of %d), %d runs ...", name, i_s + 1, len(samplers), runs)
         over = dict(NUTS_TABLE1) if str(name) == "nuts" else {}
         over.update((params or {}).get(name, {}))
         smp, cfg = make_sampler(name, params=over)
@@ -163,9 +165,12 @@ def compare(setup: Table1Setup | None = None, samplers=SAMPLERS, *, runs: int = 
                       checkpoint_every=0, groups=runs if batched else 1, init_margin=cfg.init_margin)
             secs += time.perf_counter() - t0
             evals += pot.evaluations
+            if not batched:
+                say("compare: %s run %d of %d done", smp.name, k + 1, runs)
             x = pot.to_constrained(res.z)
             xs = torch.cat([x["albedo"], x["roughness"]], 1).reshape(-1, particles, 2)
             errs += [_errors(xi, q) for xi in xs]
+        say("compare: %s done in %.1f s (MSE of the mean %.2g)", smp.name, secs, sum(e[0] for e in errs) / runs)
         out[smp.name] = {"mse_mean": sum(e[0] for e in errs) / runs, "mse_var": sum(e[1] for e in errs) / runs,
                          "seconds": secs / runs, "evaluations": evals // runs, "batched": batched,
                          "steps": n_steps if smp.name != "nuts" else None}

@@ -32,6 +32,7 @@ from typing import Callable
 
 import torch
 
+from ..io.outputs import write_text
 from ..errors import InputError
 from ..observations import Observations
 from ..posterior import Posterior
@@ -209,9 +210,7 @@ def guided_acquisition(model: "Callable | str", initial: Observations, candidate
             if rdir is not None:
                 rdir.mkdir(parents=True, exist_ok=True)
                 post.save(rdir / "posterior.safetensors")
-                tmp = rec_file.with_suffix(".tmp")
-                tmp.write_text(json.dumps(rec, indent=1))
-                tmp.replace(rec_file)
+                write_text(rec_file, json.dumps(rec, indent=1))
         res.rounds.append(rec)
         if on_round is not None:
             on_round(rec, post)
@@ -221,5 +220,5 @@ def guided_acquisition(model: "Callable | str", initial: Observations, candidate
             used += picks
     res.posterior, res.observations = post, obs
     if out is not None:
-        (out / "acquisition.json").write_text(json.dumps({"rounds": res.rounds}, indent=1))
+        write_text(out / "acquisition.json", json.dumps({"rounds": res.rounds}, indent=1))
     return res

@@ -84,7 +84,7 @@ class ModelData:
     def from_observations(cls, obs: Observations, *, dtype=torch.float32, device=None) -> "ModelData":
         if not isinstance(obs, Observations):
             raise InputError(f"expected Observations, got {type(obs).__name__}",
-                             fix="load a capture with bb.io.load_capture(path).observations")
+                             fix="load a capture with bb.io.load_capture(path)")
         device = torch.device(device) if device is not None else obs.images.device
         g = _CACHE.get(tuple(obs.views), obs.surface, dtype=dtype, device=device)
         w = g.mask.clone()

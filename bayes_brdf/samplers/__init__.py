@@ -20,7 +20,7 @@ from dataclasses import dataclass, fields
 from ..errors import InputError
 from ..presets import load_preset
 from .base import Sampler
-from .driver import RunResult, SamplerDiverged, run
+from .driver import Interrupted, RunResult, SamplerDiverged, run
 from .ensemble import Emcee
 from .multistart import MultistartSGD
 from .nuts import NUTS
@@ -115,4 +115,4 @@ def _run_config(r: dict) -> RunConfig:
 
 
 __all__ = ["Sampler", "SPOS", "SVGD", "SGLD", "Emcee", "MultistartSGD", "NUTS", "SAMPLERS", "make_sampler",
-           "RunConfig", "run", "RunResult", "SamplerDiverged"]
+           "RunConfig", "run", "RunResult", "SamplerDiverged", "Interrupted"]

@@ -11,6 +11,7 @@ from it and ends exactly where an uninterrupted run would have.
 from __future__ import annotations
 
 import json
+import logging
 import os
 import time
 from dataclasses import dataclass, field
@@ -24,10 +25,20 @@ from ..errors import InputError
 from .diagnostics import Diagnostics, diagnose
 
 FORMAT = "bayes-brdf-checkpoint/1"
+log = logging.getLogger("bayes_brdf")
 
 
 class SamplerDiverged(InputError):
     """The particles left the finite numbers: a step size too large, or a model returning NaN."""
+
+
+class Interrupted(KeyboardInterrupt):
+    """Ctrl-C (or SIGTERM in the CLI) during a run: ``step`` steps are done and saved in ``checkpoint``."""
+
+    def __init__(self, step: int, steps: int, checkpoint):
+        self.step, self.steps, self.checkpoint = step, steps, checkpoint
+        where = f"checkpoint saved to {checkpoint}" if checkpoint is not None else "no checkpoint (none was asked for)"
+        super().__init__(f"interrupted at step {step} of {steps}; {where}")
 
 
 @dataclass
@@ -62,9 +73,11 @@ def _fill(template, plain, device):
     return plain
 
 
-def _signature(sampler, n, steps, seed, minibatch, groups, init_margin=0.0, max_steps=None) -> str:
+def _signature(sampler, n, steps, seed, minibatch, groups, init_margin=0.0, max_steps=None, identity=None) -> str:
     d = {"sampler": sampler.name, "params": sampler.params(), "particles": n, "steps": steps,
          "seed": seed, "minibatch": minibatch, "groups": groups}
+    if identity is not None:
+        d["run"] = identity
     if init_margin:
         d["init_margin"] = init_margin
     if max_steps and max_steps > steps:
@@ -87,15 +100,21 @@ def _load(path: Path, signature: str) -> dict:
     if not isinstance(ck, dict) or ck.get("format") != FORMAT:
         raise InputError("not a bayes-brdf checkpoint", where=path, fix="delete it or choose another path")
     if ck["signature"] != signature:
-        raise InputError("the checkpoint was written by a run with other settings", where=path,
-                         fix="delete it, or rerun with the same sampler, particles, steps and seed")
+        from ..identity import differences
+        try:
+            diff = differences(json.loads(ck["signature"]), json.loads(signature))
+        except (TypeError, ValueError):
+            diff = []
+        what = f" (it differs in {', '.join(diff[:6])}{', ...' if len(diff) > 6 else ''})" if diff else ""
+        raise InputError(f"the checkpoint was written by another run{what}", where=path,
+                         fix="use another checkpoint path, or delete it to start over")
     return ck
 
 
 def run(sampler, potential, *, particles: int = 20, steps: int = 1000, seed: int = 0, z0: Tensor | None = None,
         checkpoint=None, checkpoint_every: int = 100, callbacks=(), progress: bool = True,
         minibatch_views: int | None = None, minibatch_pixels: float | None = None, groups: int = 1,
-        init_margin: float = 0.0, max_steps: int | None = None) -> RunResult:
+        init_margin: float = 0.0, max_steps: int | None = None, identity: dict | None = None) -> RunResult:
     """Run ``sampler`` on ``potential`` for ``steps`` steps; see the module docstring.
 
     ``callbacks`` are called as ``cb(t, state, info)`` after every step.
@@ -110,6 +129,9 @@ def run(sampler, potential, *, particles: int = 20, steps: int = 1000, seed: int
     continues the run past ``steps``, half of ``steps`` at a time, until its
     convergence checks pass or ``max_steps`` is reached (``steps="auto"`` in
     :func:`bayes_brdf.infer` and the CLI); the annealing horizon stays ``steps``.
+    ``identity`` (a JSON-able fingerprint of the data and model, :mod:`bayes_brdf.identity`) is
+    part of the checkpoint's signature: a checkpoint of other data or another model is refused.
+    A Ctrl-C saves the checkpoint and raises :class:`Interrupted` (a ``KeyboardInterrupt``).
 
     Example:
         >>> from bayes_brdf.potential import FunctionPotential
@@ -124,13 +146,13 @@ def run(sampler, potential, *, particles: int = 20, steps: int = 1000, seed: int
         return _run(sampler, potential, particles=particles, steps=steps, seed=seed, z0=z0, checkpoint=checkpoint,
                     checkpoint_every=checkpoint_every, callbacks=callbacks, progress=progress,
                     minibatch_views=minibatch_views, minibatch_pixels=minibatch_pixels, groups=groups,
-                    init_margin=init_margin, max_steps=max_steps)
+                    init_margin=init_margin, max_steps=max_steps, identity=identity)
 
 
 def _run(sampler, potential, *, particles: int = 20, steps: int = 1000, seed: int = 0, z0: Tensor | None = None,
         checkpoint=None, checkpoint_every: int = 100, callbacks=(), progress: bool = True,
         minibatch_views: int | None = None, minibatch_pixels: float | None = None, groups: int = 1,
-        init_margin: float = 0.0, max_steps: int | None = None) -> RunResult:
+        init_margin: float = 0.0, max_steps: int | None = None, identity: dict | None = None) -> RunResult:
     if not isinstance(steps, int) or steps < 1:
         raise InputError(f"steps must be a positive integer, got {steps!r}")
     if not isinstance(particles, int) or particles < 1:
@@ -147,7 +169,7 @@ def _run(sampler, potential, *, particles: int = 20, steps: int = 1000, seed: in
     if use_mb and not hasattr(potential, "minibatch"):
         raise InputError("minibatches need a model potential (its data must support minibatch)")
     sampler.num_steps, sampler.groups = steps, groups
-    signature = _signature(sampler, particles, steps, seed, mb, groups, init_margin, cap)
+    signature = _signature(sampler, particles, steps, seed, mb, groups, init_margin, cap, identity)
     total = particles * groups
     ck_path = Path(checkpoint) if checkpoint is not None else None
 
@@ -169,6 +191,7 @@ def _run(sampler, potential, *, particles: int = 20, steps: int = 1000, seed: in
         start, trace, seconds0, evals0 = ck["t"], ck["trace"], ck["seconds"], ck["evaluations"]
         horizon = int(ck.get("horizon", steps))
         rec.load(ck.get("record"))
+        log.info("resuming from step %d of %d (checkpoint %s)", start, horizon, ck_path)
 
     def save(t, rngs=None):
         if ck_path is not None:
@@ -176,15 +199,19 @@ def _run(sampler, potential, *, particles: int = 20, steps: int = 1000, seed: in
             ck_path.parent.mkdir(parents=True, exist_ok=True)
             _save(ck_path, {"format": FORMAT, "signature": signature, "t": t, "state": _plain(state),
                             "rng": r, "global_rng": gr, "trace": trace, "record": rec.state(), "horizon": horizon,
-                            "seconds": seconds0 + time.perf_counter() - t0,
-                            "evaluations": evals0 + _evals(potential) - e0})
+                            "seconds": elapsed(),
+                            "evaluations": evals0 + committed_evals})
 
     t0, e0 = time.perf_counter(), _evals(potential)
     bar = tqdm(total=horizon, initial=start, desc=sampler.name, disable=not progress, leave=False)
     done, snap = start, None   # steps whose result is in `state`; RNG states before the step in flight
+    committed_evals = 0        # evaluations of the committed steps (a step cut short is redone on resume)
+
+    def elapsed() -> float:    # sampling seconds over all sessions (a finished run reloaded adds none)
+        return seconds0 + (time.perf_counter() - t0 if done > start else 0.0)
 
     def steps_until(end: int):
-        nonlocal state, done, snap
+        nonlocal state, done, snap, committed_evals
         for t in range(done, end):
             snap = (rng.get_state(), torch.get_rng_state())
             pot = potential.minibatch(rng, **mb) if use_mb else potential
@@ -201,6 +228,7 @@ def _run(sampler, potential, *, particles: int = 20, steps: int = 1000, seed: in
                 trace[t] = float(e.double().mean())
             rec.add(t, e, z)
             state, done, snap = new_state, t + 1, None   # committed: a checkpoint now resumes after step t
+            committed_evals = _evals(potential) - e0
             for cb in callbacks:
                 cb(t, state, info)
             bar.update(1)
@@ -223,11 +251,11 @@ def _run(sampler, potential, *, particles: int = 20, steps: int = 1000, seed: in
     except KeyboardInterrupt:
         save(done, snap)
         bar.close()
-        raise
+        raise Interrupted(done, horizon, ck_path) from None
     bar.close()
     save(done)
-    evals = evals0 + _evals(potential) - e0
-    return RunResult(zf, state, trace[:done], done, seconds0 + time.perf_counter() - t0, evals, resumed_from=start,
+    evals = evals0 + committed_evals
+    return RunResult(zf, state, trace[:done], done, elapsed(), evals, resumed_from=start,
                      diagnostics=diag, energies=rec.energies[:done])
 
 

@@ -90,7 +90,7 @@ def test_fit_bad_split_is_one_line(bundle, tmp_path, capsys):
     assert main(["fit", str(bundle), "--views", "0,9", "--out", str(tmp_path / "y")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 2 and all(e.startswith("bayes-brdf: error:") for e in err)
-    assert "both fitted and held out" in err[0] and "out of range" in err[1]
+    assert "both fitted and held out" in err[0] and "--views 9: the capture has 6 views" in err[1]
 
 
 def test_recommend_ranks_heldout_views_then_reuses_the_posterior(bundle, tmp_path, capsys):

@@ -28,7 +28,8 @@ def test_infer_writes_posterior_maps_and_summary(tmp_path, capsys):
     capsys.readouterr()
     assert main(argv[:-2] + ["--seed", "1", "--out", str(out)]) == 2
     err = capsys.readouterr().err
-    assert "other settings" in err and err.count("\n") == 1
+    assert "holds a run of bundle" in err and "differs in seed" in err and "--overwrite" in err
+    assert err.count("\n") == 1
 
 
 def test_infer_bad_input(tmp_path, capsys):

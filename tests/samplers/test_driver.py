@@ -188,18 +188,18 @@ def test_checkpoint_from_other_run_is_rejected(change, tmp_path):
     ck = tmp_path / "ck.pt"
     _run("sgld", checkpoint=ck, steps=20)
     kw = {"steps": 20, **change}
-    with pytest.raises(InputError, match="other settings") as e:
+    with pytest.raises(InputError, match="written by another run") as e:
         _run("sgld", checkpoint=ck, **kw)
-    assert "\n" not in str(e.value) and str(ck) in str(e.value)
+    assert "\n" not in str(e.value) and str(ck) in str(e.value) and f"differs in {next(iter(change))}" in str(e.value)
 
 
 def test_checkpoint_from_other_params_is_rejected(tmp_path):
     ck = tmp_path / "ck.pt"
     _run("sgld", checkpoint=ck, steps=20)
     s = SAMPLERS["sgld"].from_params({**PARAMS["sgld"], "step_size": 0.02})
-    with pytest.raises(InputError, match="other settings"):
+    with pytest.raises(InputError, match="written by another run"):
         run(s, Banana().potential(), particles=N, steps=20, seed=3, progress=False, checkpoint=ck)
-    with pytest.raises(InputError, match="other settings"):   # another sampler on the same path
+    with pytest.raises(InputError, match="written by another run"):   # another sampler on the same path
         _run("spos", checkpoint=ck, steps=20)
 
 
