@@ -76,3 +76,18 @@ def test_malformed_capture_is_one_line_exit_2(shared_data, tmp_path):
     (cap / "light_pos.txt").write_text("1,2,3\n")  # 1 pose for 9 photos
     code, out, err = run("inspect", str(cap))
     assert code == 2 and len(err.strip().splitlines()) == 1 and "light_pos.txt" in err, err
+
+
+def test_help_loads_neither_torch_nor_the_library():
+    """`bayes-brdf --help` and every command's --help start fast: no torch, Pyro or Mitsuba import
+    (benchmarks/bench_import.py has the times)."""
+    code = ("import sys, contextlib, io\n"
+            "from bayes_brdf.cli.main import main\n"
+            "for c in ([], ['render'], ['inspect'], ['infer'], ['fit'], ['recommend'], ['demo'], ['compare'],"
+            " ['experiment']):\n"
+            "    with contextlib.redirect_stdout(io.StringIO()):\n"
+            "        assert main([*c, '--help']) == 0, c\n"
+            "heavy = [m for m in ('torch', 'pyro', 'mitsuba', 'matplotlib', 'cv2') if m in sys.modules]\n"
+            "assert not heavy, heavy\n")
+    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert p.returncode == 0, p.stderr
