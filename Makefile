@@ -11,11 +11,10 @@ setup:
 	@bash scripts/setup.sh
 
 demo: setup
-	$(BB) demo --out out/demo/story
 	@if [ -d $(SHARED)/captures/card_blue ]; then \
-	  $(BB) recommend $(SHARED)/captures/card_blue --views 0,2,4,6,8 --resolution 32 --steps 1500 --k 2 --out out/demo/card_blue; \
-	else echo "demo: $(SHARED) not found, skipping the real-capture part"; fi
-	@echo "demo: open $(CURDIR)/out/demo/story/report.html in a browser"
+	  $(BB) demo --out out/demo/story --capture $(SHARED)/captures/card_blue; \
+	else echo "demo: $(SHARED) not found: the report leaves out the real-capture section"; \
+	  $(BB) demo --out out/demo/story; fi
 
 test: setup
 	$(PY) -m pytest -q tests bayes_brdf --doctest-modules

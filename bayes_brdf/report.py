@@ -19,7 +19,7 @@ padding:0 1em;color:#222;line-height:1.45}
 h1{font-size:1.6em;border-bottom:2px solid #444}h2{font-size:1.25em;margin-top:1.6em;border-bottom:1px solid #ccc}
 figure{display:inline-block;margin:.3em .5em;vertical-align:top;text-align:center}
 figure img{max-width:100%;image-rendering:pixelated;border:1px solid #ddd}
-figcaption{font-size:.8em;color:#555;max-width:260px;margin:auto}
+figcaption{font-size:.85em;color:#444;margin:.2em auto 0}
 table{border-collapse:collapse;margin:.6em 0;font-size:.9em}td,th{border:1px solid #ccc;padding:.25em .6em;text-align:right}
 th{background:#f3f3f3}code,pre{background:#f6f6f6;padding:.1em .3em;border-radius:3px}
 pre{padding:.6em;overflow-x:auto}.note{color:#555;font-size:.9em}
@@ -48,7 +48,8 @@ class Report:
         figs = []
         for path, cap in items:
             data = base64.b64encode(Path(path).read_bytes()).decode()
-            figs.append(f'<figure><img src="data:image/png;base64,{data}" width="{width}" alt="{html.escape(cap)}">'
+            figs.append(f'<figure style="max-width:{width}px"><img src="data:image/png;base64,{data}" '
+                        f'width="{width}" alt="{html.escape(cap)}">'
                         f"<figcaption>{html.escape(cap)}</figcaption></figure>")
         self.blocks.append("<div>" + "".join(figs) + "</div>")
 

@@ -141,6 +141,13 @@ class AcquisitionResult:
         return [(r["views"], r["metrics"][key]) for r in self.rounds if key in r.get("metrics", {})]
 
 
+def observations_digest_of_views(views) -> str:
+    """A digest of a list of views (poses and lights): what identifies a candidate set."""
+    import hashlib
+    return hashlib.sha256(json.dumps([v.to_dict() for v in views], sort_keys=True, default=str)
+                          .encode()).hexdigest()[:16]
+
+
 def _capture(capture, views, surface) -> Observations:
     got = capture(views)
     if isinstance(got, Observations):
@@ -185,11 +192,23 @@ def guided_acquisition(model: "Callable | str", initial: Observations, candidate
     out = Path(out) if out is not None else None
     obs, used, z, res = initial, [int(i) for i in initial_indices], None, AcquisitionResult()
     surface = initial.surface
+    from ..identity import differences, fingerprint, model_description, observations_digest
+    setup = {"model": model if isinstance(model, str) else model_description(model), "sampler": str(sampler),
+             "particles": particles, "steps": steps, "params": params, "method": method, "k": ks, "radius": radius,
+             "warm_start": warm_start, "map_steps": map_steps, "score": score_kw,
+             "candidates": observations_digest_of_views(candidates)}
     for r in range(rounds + 1):
         rdir = out / f"round_{r:02d}" if out is not None else None
         rec_file = rdir / "round.json" if rdir is not None else None
+        fp = fingerprint(data=observations_digest(obs), model=setup["model"], seed=seed + r, round=r,
+                         setup={k: v for k, v in setup.items() if k != "model"}) if rdir is not None else None
         if rec_file is not None and rec_file.is_file():  # finished before: replay its captures, keep its particles
             rec = json.loads(rec_file.read_text())
+            if rec.get("fingerprint") != fp:
+                diff = differences(rec.get("fingerprint") or {}, fp)
+                raise InputError(f"holds round {r} of another acquisition run (it differs in "
+                                 f"{', '.join(diff[:4]) or 'its format'})", where=rdir,
+                                 fix="use another out folder, or delete it to start over")
             post = Posterior.load(rdir / "posterior.safetensors")
             picks = rec["picks"]["indices"] if rec.get("picks") else []
         else:
@@ -206,6 +225,7 @@ def guided_acquisition(model: "Callable | str", initial: Observations, candidate
                                  seed=seed + r, offset=len(obs), **(score_kw or {}))
                 rec["picks"] = pick.to_dict()
                 rec["recommend_seconds"] = time.perf_counter() - t1
+            rec["fingerprint"] = fp
             picks = rec["picks"]["indices"] if rec["picks"] else []
             if rdir is not None:
                 rdir.mkdir(parents=True, exist_ok=True)

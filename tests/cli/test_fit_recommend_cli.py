@@ -146,7 +146,8 @@ def test_experiment_settings_parse_as_their_defaults():
 
 def test_demo_writes_a_self_contained_report(tmp_path, capsys):
     out = tmp_path / "demo"
-    assert main(["demo", "--resolution", "8", "--steps", "60", "--rounds", "1", "--k", "2", "--out", str(out)]) == 0
+    assert main(["demo", "--resolution", "8", "--steps", "60", "--rounds", "1", "--k", "2", "--seeds", "2",
+                 "--out", str(out)]) == 0
     html = (out / "report.html").read_text()
     assert html.count("data:image/png;base64,") >= 10 and "<img src=\"http" not in html   # images embedded
     assert "Image-space uncertainty" in html and "Guided capture" in html
@@ -156,5 +157,35 @@ def test_demo_writes_a_self_contained_report(tmp_path, capsys):
     printed = capsys.readouterr().out
     assert str((out / "report.html").resolve()) in printed
     d = json.loads((out / "demo.json").read_text())
-    assert [r["views"] for r in d["rounds"]["guided (MI)"]] == [5, 7]
+    assert d["guided"]["guided (MI)"]["views"] == [5, 7] and len(d["guided"]["guided (MI)"]["novel_error"]) == 2
+    # the story's numbers: coverage at 10 ... 90 % (reliability diagram), std vs error, a conclusion
+    assert "reliability" in html and "std against the actual error" in html and "Conclusion:" in html
+    assert set(d["coverage_novel"]) == {"10", "20", "30", "40", "50", "60", "70", "80", "90"}
+    assert f"This demo took {d['seconds']['total']:.0f} s" in html
     assert main(["demo", "--material", "cheese", "--out", str(out)]) == 2
+
+
+def test_fit_heldout_maps_share_one_range_and_draw_clipped_pixels(shared_data, tmp_path):
+    """A held-out view's error and std maps use one colour range (summary: map_range); clipped pixels are
+    NaN in the EXRs and drawn in the mask colour, named in the legend, in the PNGs (not as zero error)."""
+    import numpy as np
+    from PIL import Image
+
+    from bayes_brdf.io import load_capture, read_image
+    from bayes_brdf.uncertainty import MASK_COLOURS
+
+    out = tmp_path / "fit"
+    cap = shared_data / "captures" / "card_blue"
+    assert main(["fit", str(cap), "--views", "0,2,4,6,8", "--resolution", "32", "--steps", "30",
+                 "--particles", "4", "--out", str(out)]) == 0
+    h = json.loads((out / "summary.json").read_text())["heldout"]
+    lo, hi = h["map_range"]
+    assert lo == 0 and hi > 0 and h["saturated_left_out"] > 0
+    sat = load_capture(cap, resolution=32).saturated[1].numpy()
+    assert sat.any()
+    for kind in ("error", "std"):
+        exr = read_image(out / "heldout" / f"view_01_{kind}.exr")
+        assert np.isnan(exr[sat]).all() and np.isfinite(exr[~sat]).all()
+        png = np.asarray(Image.open(out / "heldout" / f"view_01_{kind}.png").convert("RGB")).reshape(-1, 3)
+        colour = np.array([int(MASK_COLOURS[0][i:i + 2], 16) for i in (1, 3, 5)])
+        assert (np.abs(png.astype(int) - colour).sum(1) <= 3).sum() > 20      # the clipped pixels, drawn

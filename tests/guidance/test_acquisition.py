@@ -122,6 +122,10 @@ def test_two_rounds_write_files_grow_views_and_resume(tmp_path, monkeypatch):
     assert again.observations.views == res.observations.views
     assert torch.equal(again.posterior.particles["roughness"], res.posterior.particles["roughness"])
     monkeypatch.undo()
+    # a folder of another acquisition run (other steps, other method) is refused, naming what differs
+    for kw, word in (({"steps": 41}, "steps"), ({"method": "sobol"}, "method")):
+        with pytest.raises(InputError, match=f"holds round 0 of another acquisition run.*{word}"):
+            _run(tmp_path, **kw)
 
     # a run interrupted before its last round: only that round is fitted again
     import shutil
