@@ -16,6 +16,8 @@ from bayes_brdf.observations import Observations
 from bayes_brdf.render.cameras import RectifiedCamera
 from bayes_brdf.render.views import View
 
+from .helpers import raises_one_line
+
 
 def _photo(path, size=(8, 8), value=100):
     Image.fromarray(np.full((size[1], size[0], 3), value, np.uint8)).save(path)
@@ -46,17 +48,7 @@ def _sdr(d, n=3, name="parameters.json", **over):
     return d
 
 
-def _raises(fn, *names):
-    """Call ``fn``; it must raise a one-line InputError mentioning every string in ``names``."""
-    with pytest.raises(InputError) as ei:
-        fn()
-    msg = str(ei.value)
-    assert "\n" not in msg
-    for n in names:
-        assert n in msg, f"{n!r} not in {msg!r}"
-    # re-raised cleanly: no chained PIL/json/numpy traceback is shown
-    assert ei.value.__cause__ is None and (ei.value.__context__ is None or ei.value.__suppress_context__)
-    return msg
+_raises = raises_one_line
 
 
 def test_good_synthetic_captures_load(tmp_path):

@@ -22,19 +22,12 @@ from bayes_brdf.render.cameras import RectifiedCamera
 from bayes_brdf.render.maps import SVBRDF
 from bayes_brdf.render.views import View
 
+from .helpers import raises_one_line
+
 POSE_FILES = ("camera_pos.txt", "light_pos.txt", "image_size.txt", "light_power.txt")
 
 
-def _raises(fn, *names):
-    """Call ``fn``; it must raise a one-line InputError mentioning every string in ``names``."""
-    with pytest.raises(InputError) as ei:
-        fn()
-    msg = str(ei.value)
-    assert "\n" not in msg
-    for n in names:
-        assert n in msg, f"{n!r} not in {msg!r}"
-    assert ei.value.__cause__ is None and (ei.value.__context__ is None or ei.value.__suppress_context__)
-    return msg
+_raises = raises_one_line
 
 
 @pytest.fixture(scope="module")
