@@ -129,6 +129,11 @@ def compare(setup: Table1Setup | None = None, samplers=SAMPLERS, *, runs: int = 
     runs its preset's steps (what a user gets; the budget is in the ``evaluations`` column); a number gives
     every sampler the same budget; ``{sampler: steps}`` overrides some.
     """
+    made = []
+    for name in samplers:             # every sampler resolved (a bad name fails) before any work
+        over = dict(NUTS_TABLE1) if str(name) == "nuts" else {}
+        over.update((params or {}).get(name, {}))
+        made.append(make_sampler(name, params=over))
     setup = setup or Table1Setup()
     q = quadrature(setup)
     model, data = problem(setup)
@@ -139,11 +144,8 @@ def compare(setup: Table1Setup | None = None, samplers=SAMPLERS, *, runs: int = 
     errs = [_errors(iid_draws(q, particles, gen), q) for _ in range(n_iid)]
     out["iid"] = {"mse_mean": sum(e[0] for e in errs) / n_iid, "mse_var": sum(e[1] for e in errs) / n_iid,
                   "seconds": 0.0, "evaluations": 0, "runs": n_iid}
-    for i_s, name in enumerate(samplers):
-        say("compare: %s (%d of %d), %d runs ...", name, i_s + 1, len(samplers), runs)
-        over = dict(NUTS_TABLE1) if str(name) == "nuts" else {}
-        over.update((params or {}).get(name, {}))
-        smp, cfg = make_sampler(name, params=over)
+    for i_s, (smp, cfg) in enumerate(made):
+        say("compare: %s (%d of %d), %d runs ...", smp.name, i_s + 1, len(made), runs)
         n_steps = (steps.get(smp.name, cfg.steps) if isinstance(steps, dict) else
                    cfg.steps if steps is None else steps)
         errs, secs, evals = [], 0.0, 0

@@ -13,7 +13,7 @@ Example:
     >>> import tempfile, pathlib
     >>> d = pathlib.Path(tempfile.mkdtemp())
     >>> write_json(d / "a.json", {"x": 1}).read_text()
-    '{\\n  "x": 1\\n}'
+    '{\\n  "x": 1\\n}\\n'
     >>> oct((d / "a.json").stat().st_mode & 0o777) == oct(file_mode())
     True
 """
