@@ -27,14 +27,13 @@ import torch
 from torch import Tensor
 
 from .errors import InputError
-from .render.gbuffer import GBufferCache
+from .render.gbuffer import GBUFFERS
 from .render.maps import SVBRDF
 from .render.shade import shade_chunks
 from .render.surface import PlanarSample
 
 #: the one colormap of every uncertainty / error figure
 CMAP = "inferno"
-_CACHE = GBufferCache(max_entries=16)
 
 
 def parameter_std(post) -> dict[str, Tensor]:
@@ -42,7 +41,8 @@ def parameter_std(post) -> dict[str, Tensor]:
     return post.std()
 
 
-def _particle_maps(post) -> SVBRDF:
+def particle_maps(post) -> SVBRDF:
+    """The maps of every particle (``[n, C, H, W]``) of a posterior, or ``post`` itself when it is such maps."""
     if isinstance(post, SVBRDF):
         if post.num_particles is None:
             raise InputError("image-space std needs maps with a particle dimension [n, C, H, W]")
@@ -50,7 +50,8 @@ def _particle_maps(post) -> SVBRDF:
     return post.maps("all")
 
 
-def _surface(post, surface):
+def resolve_surface(post, surface):
+    """``surface`` when given, else the posterior's (from its file); one line when neither is known."""
     if surface is not None:
         return surface
     s = getattr(post, "surface", None)
@@ -67,12 +68,12 @@ def particle_renders(post, views, surface: PlanarSample | None = None, *, chunk_
     particle maps (:class:`SVBRDF` with a particle dimension). Memory is
     bounded by ``chunk_views`` (default: about 64 M values per chunk).
     """
-    maps = _particle_maps(post)
-    surface = _surface(post, surface)
+    maps = particle_maps(post)
+    surface = resolve_surface(post, surface)
     views = list(views)
     if not views:
         raise InputError("no views given", fix="pass at least one View")
-    g = _CACHE.get(tuple(views), surface, dtype=maps.albedo.dtype, device=maps.albedo.device)
+    g = GBUFFERS.get(tuple(views), surface, dtype=maps.albedo.dtype, device=maps.albedo.device)
     n, (h, w) = maps.num_particles, g.resolution
     if chunk_views is None:
         chunk_views = max(1, (64 * 2**20) // max(1, n * h * w * 3))

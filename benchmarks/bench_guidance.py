@@ -19,7 +19,7 @@ from bayes_brdf.guidance.scores import score_views
 from bayes_brdf.render import PlanarSample, SVBRDF, collocated_views
 from bayes_brdf.render.gbuffer import GBuffer
 from bayes_brdf.render.shade import shade
-from bayes_brdf.uncertainty import _CACHE
+from bayes_brdf.render.gbuffer import GBUFFERS as _CACHE
 
 
 def particles(n, R, seed=0):

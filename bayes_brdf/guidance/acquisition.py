@@ -112,11 +112,12 @@ class Evaluation:
         return cls(list(views), obs.images, capture.maps)
 
     def __call__(self, post: Posterior, surface) -> dict:
-        from ..uncertainty import _CACHE, image_std
+        from ..render.gbuffer import GBUFFERS
+        from ..uncertainty import image_std
         std, _ = image_std(post, self.views, surface, return_mean=True)
         m = post.maps("map")
         pred = render(m, self.views, surface)[0]
-        g = _CACHE.get(tuple(self.views), surface, dtype=pred.dtype, device=pred.device)
+        g = GBUFFERS.get(tuple(self.views), surface, dtype=pred.dtype, device=pred.device)
         valid = g.mask if self.mask is None else (g.mask & self.mask.to(g.mask.device))
         y = self.images.to(pred)
         out = {"novel_error": float((pred - y).abs()[valid].mean()),

@@ -25,7 +25,8 @@ from torch import Tensor
 
 from ..errors import InputError
 from ..render.shade import shade_chunks
-from ..uncertainty import _CACHE, _particle_maps, _surface
+from ..render.gbuffer import GBUFFERS
+from ..uncertainty import particle_maps, resolve_surface
 from .entropy import kde_entropy, noise_entropy
 
 
@@ -100,8 +101,8 @@ def score_views(post: "Posterior | SVBRDF", candidates: list, surface=None, *, e
     noise_var = parse_noise_var(noise_var)
     if noise_var == "observation":
         noise_var = observation_noise_var(post)
-    maps = _particle_maps(post)
-    surface = _surface(post, surface)
+    maps = particle_maps(post)
+    surface = resolve_surface(post, surface)
     candidates = list(candidates)
     if not candidates:
         raise InputError("no candidate views to score", fix="pass at least one View")
@@ -124,7 +125,7 @@ def score_views(post: "Posterior | SVBRDF", candidates: list, surface=None, *, e
     kw = dict(nodes=nodes, noise_var=noise_var, min_bandwidth=min_bandwidth, backend=backend)
     P = 3 * H * W
     with torch.no_grad():
-        for b0, g in _CACHE.blocks(candidates, surface, dtype=dt, device=dev):
+        for b0, g in GBUFFERS.blocks(candidates, surface, dtype=dt, device=dev):
             keep = counted_pixels(g, maps.albedo.shape[-2:], footprint)
             px[b0:b0 + g.num_views] = keep.reshape(g.num_views, -1).sum(1)
             for s, stop, r in shade_chunks(maps, g, chunk_views=chunk_views):   # r [n, v, 3, H, W]

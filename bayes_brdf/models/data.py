@@ -8,9 +8,7 @@ from torch import Tensor
 
 from ..errors import InputError
 from ..observations import Observations
-from ..render.gbuffer import GBuffer, GBufferCache
-
-_CACHE = GBufferCache()
+from ..render.gbuffer import GBUFFERS, GBuffer
 
 
 @dataclass
@@ -86,7 +84,7 @@ class ModelData:
             raise InputError(f"expected Observations, got {type(obs).__name__}",
                              fix="load a capture with bb.io.load_capture(path)")
         device = torch.device(device) if device is not None else obs.images.device
-        g = _CACHE.get(tuple(obs.views), obs.surface, dtype=dtype, device=device)
+        g = GBUFFERS.get(tuple(obs.views), obs.surface, dtype=dtype, device=device)
         w = g.mask.clone()
         if obs.mask is not None:
             w &= obs.mask.to(device)

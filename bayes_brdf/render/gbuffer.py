@@ -210,6 +210,9 @@ class GBuffer:
 class GBufferCache:
     """Keeps G-buffers by (views, surface, dtype, device) so each view's geometry is computed once.
 
+    The library shares one, :data:`GBUFFERS` (rendering, model data, uncertainty, guidance): one
+    memory budget, and a view set used by two of them is built once.
+
     Example:
         >>> from bayes_brdf.render.views import collocated_views
         >>> cache = GBufferCache()
@@ -255,3 +258,7 @@ class GBufferCache:
         step = max(1, self.max_bytes // (4 * per_view))
         for b0 in range(0, len(views), step):
             yield b0, GBuffer.build(views[b0:b0 + step], surface, dtype=dtype, device=device)
+
+
+#: the one G-buffer cache of the library (1 GiB, 64 view sets, least recently used first out)
+GBUFFERS = GBufferCache()

@@ -22,7 +22,7 @@ from torch import Tensor
 
 from ..errors import InputError
 from . import fused
-from .gbuffer import GBuffer, GBufferCache
+from .gbuffer import GBUFFERS, GBuffer
 from .maps import SVBRDF
 from .surface import PlanarSample
 
@@ -171,13 +171,10 @@ class Renderer:
         return shade(maps, self.gbuffer, channels_last=channels_last, **self.kw)
 
 
-_CACHE = GBufferCache()
-
-
 def render(maps: SVBRDF, views, surface: PlanarSample | None = None, **kw) -> Tensor:
     """Shade ``maps`` under ``views`` (G-buffers cached across calls); see :func:`shade` for options."""
     dev, dt = maps.albedo.device, maps.albedo.dtype
-    g = _CACHE.get(tuple(views), surface or PlanarSample(), dtype=dt, device=dev)
+    g = GBUFFERS.get(tuple(views), surface or PlanarSample(), dtype=dt, device=dev)
     return shade(maps, g, **kw)
 
 

@@ -85,7 +85,7 @@ def test_mi_equals_per_view_reference_and_chunking_does_not_matter(camera, res, 
 
 
 def test_a_candidate_set_over_the_memory_budget_is_scored_in_blocks_with_the_same_result(monkeypatch):
-    from bayes_brdf.uncertainty import _CACHE
+    from bayes_brdf.render.gbuffer import GBUFFERS as _CACHE
 
     maps = _random_maps()
     views = collocated_views(9, 3.0, camera="perspective", resolution=32, power=10.0, max_zenith=60, seed=3)
