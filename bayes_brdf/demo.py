@@ -243,9 +243,8 @@ def run(out, *, progress: bool = False, log=print, **overrides) -> Path:
     scores = score_views(post, cands, SURFACE, seed=seed)
     rec = recommend(post, cands, int(cfg["k"]), radius=float(cfg["radius"]), exclude=init_idx, scores=scores)
     times["recommend"] = time.perf_counter() - t
-    from .cli.recommend import _plot
     cand_png = out / "recommend" / "candidates.png"
-    _plot(cand_png, cands, scores.mi.numpy(), rec.indices, f"{len(cands)} candidate flash views, MI")
+    figures.plot_candidates(cand_png, cands, scores.mi.numpy(), rec.indices, f"{len(cands)} candidate flash views, MI")
     log(f"demo: 4/6 scored {len(cands)} candidate views in {scores.seconds:.1f} s; recommended "
         + ", ".join(f"{tuple(round(c, 1) for c in cands[i].camera.position)}" for i in rec.indices))
 

@@ -151,3 +151,29 @@ def interval_coverage(particles: torch.Tensor, truth: torch.Tensor, levels) -> l
         hi = torch.quantile(particles.float(), 0.5 + q / 2, dim=0)
         out.append(float(((truth >= lo) & (truth <= hi)).float().mean()))
     return out
+
+
+def plot_candidates(path, cands, scores, picks, title):
+    """Candidate views seen from above (camera directions), coloured by ``scores``; ``picks`` ringed and numbered."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from .uncertainty import CMAP
+    d = np.array([v.camera.position for v in cands], dtype=float)
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    fig, ax = plt.subplots(figsize=(4.2, 3.8))
+    sc = ax.scatter(d[:, 0], d[:, 1], c=scores, cmap=CMAP, s=18)
+    ax.scatter(d[picks, 0], d[picks, 1], s=120, facecolors="none", edgecolors="tab:cyan", linewidths=2,
+               label="recommended")
+    for rank, i in enumerate(picks):
+        ax.annotate(str(rank + 1), d[i, :2], xytext=(4, 4), textcoords="offset points", color="tab:cyan", fontsize=9)
+    ax.add_patch(plt.Circle((0, 0), 1, fill=False, color="gray", lw=0.5))
+    ax.set_aspect("equal")
+    ax.set_xlabel("camera direction x")
+    ax.set_ylabel("camera direction y")
+    ax.set_title(title, fontsize=9)
+    fig.colorbar(sc, ax=ax, fraction=0.046, pad=0.04, label="mutual information (nats)")
+    ax.legend(fontsize=7, loc="lower right")
+    fig.tight_layout()
+    save_figure(fig, path, dpi=110)

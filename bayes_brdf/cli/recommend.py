@@ -69,37 +69,9 @@ def _candidates(spec: str, full, fitted):
     return views, list(range(len(views)))
 
 
-def _plot(path, cands, scores, picks, title):
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    import numpy as np
-
-    from ..uncertainty import CMAP
-    d = np.array([v.camera.position for v in cands], dtype=float)
-    d /= np.linalg.norm(d, axis=1, keepdims=True)
-    fig, ax = plt.subplots(figsize=(4.2, 3.8))
-    sc = ax.scatter(d[:, 0], d[:, 1], c=scores, cmap=CMAP, s=18)
-    ax.scatter(d[picks, 0], d[picks, 1], s=120, facecolors="none", edgecolors="tab:cyan", linewidths=2,
-               label="recommended")
-    for rank, i in enumerate(picks):
-        ax.annotate(str(rank + 1), d[i, :2], xytext=(4, 4), textcoords="offset points", color="tab:cyan", fontsize=9)
-    ax.add_patch(plt.Circle((0, 0), 1, fill=False, color="gray", lw=0.5))
-    ax.set_aspect("equal")
-    ax.set_xlabel("camera direction x")
-    ax.set_ylabel("camera direction y")
-    ax.set_title(title, fontsize=9)
-    fig.colorbar(sc, ax=ax, fraction=0.046, pad=0.04, label="mutual information (nats)")
-    ax.legend(fontsize=7, loc="lower right")
-    fig.tight_layout()
-    from ..io.outputs import atomic_path
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=110)
-    plt.close(fig)
-
-
 def run(a) -> int:
     from ..errors import InputError
+    from ..figures import plot_candidates
     from ..guidance import recommend, score_views
     from ..guidance.scores import parse_noise_var
     from ..io.outputs import write_json
@@ -133,8 +105,9 @@ def run(a) -> int:
     if scores is not None:
         result["all"] = [{"candidate": labels[i], "mi": float(scores.mi[i]), "mean_std": float(scores.mean_std[i]),
                           "pixels": int(scores.pixels[i])} for i in range(len(cands))]
-        _plot(out / "candidates.png", cands, scores.mi.numpy() if a.method == "mi" else scores.mean_std.numpy(),
-              rec.indices, f"{len(cands)} candidates, {a.k} recommended ({a.method})")
+        plot_candidates(out / "candidates.png", cands,
+                        scores.mi.numpy() if a.method == "mi" else scores.mean_std.numpy(),
+                        rec.indices, f"{len(cands)} candidates, {a.k} recommended ({a.method})")
     write_json(out / "recommend.json", result)
     what = "view" if a.candidates == "heldout" else "candidate"
     print(f"recommended ({a.method}, from {len(cands)} candidates): "
