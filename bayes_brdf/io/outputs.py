@@ -82,7 +82,7 @@ def _oserror(e: OSError) -> str:
     return e.strerror or type(e).__name__
 
 
-def check_folder(path, *, need_bytes: int = 0, option: str = "--out") -> Path:
+def check_folder(path, *, need_bytes: int = 0, option: str = "--out", fix: str | None = None) -> Path:
     """Create ``path`` (a folder) if needed and check it can be written and has ``need_bytes`` free.
 
     Raises one :class:`InputError` naming the folder and the option otherwise. Nothing is left
@@ -98,7 +98,7 @@ def check_folder(path, *, need_bytes: int = 0, option: str = "--out") -> Path:
         probe.unlink()
     except OSError as e:
         raise InputError(f"cannot write to {option} {p} ({_oserror(e)})",
-                         fix=f"choose a writable folder for {option}") from None
+                         fix=fix or f"choose a writable folder for {option}") from None
     if need_bytes:
         free = shutil.disk_usage(p).free
         if free < need_bytes:
@@ -112,7 +112,8 @@ def check_file_target(path, *, option: str) -> Path:
     p = Path(path)
     if p.is_dir():
         raise InputError(f"{option} {p} is a folder", fix=f"give a file name for {option}")
-    check_folder(p.parent if str(p.parent) else ".", option=f"the folder of {option}")
+    check_folder(p.parent if str(p.parent) else ".", option=f"the folder of {option}",
+                 fix=f"give {option} a file in a writable folder")
     return p
 
 
