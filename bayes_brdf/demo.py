@@ -92,6 +92,15 @@ def _guided(cfg, truth, cands, novel, ev, out, progress, log):
     return curves, unconverged
 
 
+def _mean_sd(curves, key: str) -> dict:
+    """``{label: (views, mean over seeds, sd over seeds)}`` of one per-round series (``"runs"``: novel error)."""
+    out = {}
+    for lab, c in curves.items():
+        t = torch.tensor(c[key])
+        out[lab] = (c["views"], t.mean(0).tolist(), (t.std(0) if len(t) > 1 else torch.zeros(t.shape[1])).tolist())
+    return out
+
+
 def _conclusion(curves) -> str:
     (gl, g), (bl, b) = curves.items()
     ge = torch.tensor(g["runs"])[:, -1]
@@ -255,16 +264,10 @@ def run(out, *, progress: bool = False, log=print, **overrides) -> Path:
     if unconverged:
         log(f"demo: note: {unconverged} guided-round posteriors did not pass every convergence check")
     times["guided"] = time.perf_counter() - t
-    stats = {lab: (c["views"], torch.tensor(c["runs"]).mean(0).tolist(),
-                   (torch.tensor(c["runs"]).std(0) if len(c["runs"]) > 1 else torch.zeros(len(c["views"]))).tolist())
-             for lab, c in curves.items()}
-    err_png = figures.bands(out / "guided" / "novel_error.png", stats, xlabel="number of views",
+    err_png = figures.bands(out / "guided" / "novel_error.png", _mean_sd(curves, "runs"), xlabel="number of views",
                             ylabel="novel-view error of the MAP",
                             title=f"guided vs baseline: mean ± sd over {cfg['seeds']} seeds")
-    std_stats = {lab: (c["views"], torch.tensor(c["std"]).mean(0).tolist(),
-                       (torch.tensor(c["std"]).std(0) if len(c["std"]) > 1 else torch.zeros(len(c["views"]))).tolist())
-                 for lab, c in curves.items()}
-    std_png = figures.bands(out / "guided" / "mean_image_std.png", std_stats, xlabel="number of views",
+    std_png = figures.bands(out / "guided" / "mean_image_std.png", _mean_sd(curves, "std"), xlabel="number of views",
                             ylabel="mean image-space std", title=f"mean ± sd over {cfg['seeds']} seeds")
     conclusion = _conclusion(curves) if int(cfg["rounds"]) > 0 else "No guided rounds were run (--rounds 0)."
     log(f"demo: 5/6 {cfg['rounds']} guided rounds of {cfg['k']} views and the baseline, {cfg['seeds']} seeds, in "

@@ -11,7 +11,8 @@ import numpy as np
 import torch
 
 from .experiments.common import save_figure
-from .uncertainty import show_map
+from .io.images import linear_to_srgb
+from .uncertainty import as_hwc, scalar_map, show_map
 
 
 def _np(x) -> np.ndarray:
@@ -20,17 +21,13 @@ def _np(x) -> np.ndarray:
 
 def rgb_panel(img, title: str) -> dict:
     """An RGB panel: ``img [H, W, 3]`` (or ``[3, H, W]``) linear in 0-1, shown sRGB (gamma 2.2)."""
-    a = _np(img)
-    if a.ndim == 3 and a.shape[0] == 3 and a.shape[-1] != 3:
-        a = a.transpose(1, 2, 0)
-    return {"rgb": np.clip(a, 0, 1) ** (1 / 2.2), "title": f"{title}\n(RGB, linear 0–1, shown sRGB)"}
+    rgb = linear_to_srgb(as_hwc(img).clamp(0, 1)).numpy()
+    return {"rgb": rgb, "title": f"{title}\n(RGB, linear 0–1, shown sRGB)"}
 
 
 def map_panel(value, title: str, vmin: float = 0.0, vmax: float | None = None, masks: dict | None = None) -> dict:
     """A value panel (channels averaged) with a colour bar from ``vmin`` to ``vmax`` (99th percentile by default)."""
-    a = _np(value)
-    if a.ndim == 3:
-        a = a.mean(0) if a.shape[0] in (1, 3) and a.shape[-1] not in (1, 3) else a.mean(-1)
+    a = scalar_map(value).numpy()
     if vmax is None:
         fin = a[np.isfinite(a)]
         vmax = float(np.percentile(fin, 99)) if fin.size else 1.0

@@ -30,6 +30,15 @@ def _update(h, t) -> None:
     h.update(t.numpy().tobytes())
 
 
+def views_digest(views) -> str:
+    """SHA-256 (hex, 16 characters) of a list of views (poses and lights), e.g. a candidate set."""
+    return hashlib.sha256(_views_json(views)).hexdigest()[:16]
+
+
+def _views_json(views) -> bytes:
+    return json.dumps([v.to_dict() for v in views], sort_keys=True, default=str).encode()
+
+
 def observations_digest(obs) -> str:
     """SHA-256 (hex, 16 characters) of the observations' images, masks, views and surface.
 
@@ -40,7 +49,7 @@ def observations_digest(obs) -> str:
     _update(h, obs.images.float())
     _update(h, obs.mask)
     _update(h, obs.saturated)
-    h.update(json.dumps([v.to_dict() for v in obs.views], sort_keys=True, default=str).encode())
+    h.update(_views_json(obs.views))
     h.update(json.dumps({"size": obs.surface.size, "grid": obs.surface.grid}, default=str).encode())
     return h.hexdigest()[:16]
 

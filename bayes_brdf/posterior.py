@@ -222,17 +222,15 @@ class Posterior:
                 t = {k: f.get_tensor(k) for k in f.keys()}
         except Exception as e:  # noqa: BLE001
             raise InputError(f"unreadable posterior file ({type(e).__name__})", where=path) from None
-        if "bayes-brdf" in md:        # since 0.1: one JSON entry; before: "format" and "meta" entries
-            try:
-                md = json.loads(md["bayes-brdf"])
-                md["meta"] = json.dumps(md.get("meta", {}))
-            except (TypeError, ValueError):
-                md = {}
-        if md.get("format") != FORMAT:
+        try:   # since 0.1 one JSON entry {"format", "meta"}; before, two entries with the meta as JSON text
+            md = json.loads(md["bayes-brdf"]) if "bayes-brdf" in md else {**md, "meta": json.loads(md.get("meta", "{}"))}
+        except (TypeError, ValueError):
+            md = {}
+        if not isinstance(md, dict) or md.get("format") != FORMAT:
             raise InputError("not a bayes-brdf posterior file", where=path)
         parts = {k[5:]: v for k, v in t.items() if k.startswith("site/")}
         mp = {k[4:]: v for k, v in t.items() if k.startswith("map/")} or None
-        meta = json.loads(md.get("meta", "{}"))
+        meta = md.get("meta") or {}
         return cls(parts, t["energies"], z=t.get("z"), meta=meta, model=_model_from_meta(meta), map_values=mp)
 
     def to_arviz(self):

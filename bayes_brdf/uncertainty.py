@@ -169,16 +169,17 @@ def colorize(x, vmin: float = 0.0, vmax: float | None = None, cmap: str = CMAP) 
     return (matplotlib.colormaps[cmap](t)[..., :3] * 255 + 0.5).astype(np.uint8)
 
 
-def _hwc(img) -> Tensor:
-    """``img`` as ``[H, W]`` or ``[H, W, C]`` (a channel-first ``[C, H, W]`` map with C <= 3 is moved)."""
+def as_hwc(img) -> Tensor:
+    """``img`` as a CPU float ``[H, W]`` or ``[H, W, C]`` (a channel-first ``[C, H, W]`` map with C <= 3 is moved)."""
     t = torch.as_tensor(img).detach().float().cpu()
     if t.dim() == 3 and t.shape[0] in (1, 2, 3) and t.shape[-1] not in (1, 2, 3):
         t = t.movedim(0, -1)  # channel-first map
     return t
 
 
-def _scalar(img) -> Tensor:
-    t = _hwc(img)
+def scalar_map(img) -> Tensor:
+    """``img`` (``[H, W]``, ``[H, W, C]`` or channel-first ``[C, H, W]``) as one ``[H, W]`` map (channels averaged)."""
+    t = as_hwc(img)
     return t.mean(-1) if t.dim() == 3 else t
 
 
@@ -235,7 +236,7 @@ def write_map(path, value, *, title: str = "", vmin: float = 0.0, vmax: float | 
 
     path = Path(path).with_suffix("")
     path.parent.mkdir(parents=True, exist_ok=True)
-    t = _hwc(value)
+    t = as_hwc(value)
     if t.dim() != 2 and not (t.dim() == 3 and t.shape[-1] <= 3):
         raise InputError(f"write_map: a map is [H, W], [H, W, C] or [C, H, W] with C <= 3, got {tuple(t.shape)}",
                          where=path, fix="write one channel group per call")
@@ -251,7 +252,7 @@ def write_map(path, value, *, title: str = "", vmin: float = 0.0, vmax: float | 
         elif e.shape[-1] == 2:   # e.g. normal slopes: R, G with B = 0
             e = torch.cat([e, torch.zeros_like(e[..., :1])], -1)
         write_exr(path.with_suffix(".exr"), e)
-    s = _scalar(t).numpy()
+    s = scalar_map(t).numpy()
     if vmax is None:
         fin = s[np.isfinite(s)]
         vmax = float(np.percentile(fin, 99)) if fin.size else 1.0

@@ -53,7 +53,9 @@ def run(a) -> int:
     if a.capture:
         from ..identity import observations_digest
         from ..io import load_capture
-        settings["capture"] = observations_digest(load_capture(a.capture, resolution=32))   # fails now if bad
+        from ..demo import DEFAULTS
+        res = DEFAULTS["capture_resolution"]
+        settings["capture"] = observations_digest(load_capture(a.capture, resolution=res))   # fails now if bad
     from .. import __version__
     claim(a.out, {"demo": settings, "version": __version__},
           f"a demo of {a.material} ({a.resolution} px, seed {a.seed})", overwrite=a.overwrite, owned=OWNED)

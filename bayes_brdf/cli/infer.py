@@ -7,7 +7,7 @@ import warnings
 from pathlib import Path
 
 from .common import check_views, key_value, particles_arg, positive_int, steps_arg, view_list
-from .run_folder import claim_folder, log_run, output_folder
+from .run_folder import claim_folder, log_run, model_table, output_folder
 
 
 def add_sampling_args(f, default_out: str):
@@ -71,16 +71,12 @@ def sample(a, obs, out: Path):
     """
     from ..errors import ConvergenceWarning
     from ..inference import infer
-    from ..presets import load_preset
     from ..samplers.driver import Interrupted
 
     status = claim_folder(a, obs)
     if status == "overwritten":
         print(f"bayes-brdf: --overwrite: starting over in {out}", file=sys.stderr)
-    table = dict(load_preset("models", a.model))
-    table.update(dict(a.model_param))
-    if table.get("model") == "per_texel" and "resolution" not in dict(a.model_param):
-        table["resolution"] = obs.resolution[0]
+    table = model_table(a, obs)
     t = time.perf_counter()
     try:
         with warnings.catch_warnings():         # the CLI says it in its own terms (convergence_note)

@@ -48,13 +48,24 @@ def _views_label(views) -> str:
     return "all views" if views is None else "views " + ",".join(str(v) for v in views)
 
 
+def model_table(a, obs) -> dict:
+    """The model preset table of ``a`` with its ``--model-param`` overrides (a per_texel model gets the
+    photos' resolution unless overridden): what is sampled, and what the fingerprint records."""
+    from ..presets import load_preset
+
+    table = dict(load_preset("models", a.model))
+    table.update(dict(a.model_param))
+    if table.get("model") == "per_texel" and "resolution" not in dict(a.model_param):
+        table["resolution"] = obs.resolution[0]
+    return table
+
+
 def run_fingerprint(a, obs) -> tuple[dict, str]:
     """The fingerprint of ``a``'s sampling run on the loaded ``obs`` and a short label for messages."""
     from ..identity import fingerprint, observations_digest
     from ..presets import load_preset
 
-    model = dict(load_preset("models", a.model))
-    model.update(dict(a.model_param))
+    model = model_table(a, obs)
     sampler = dict(load_preset("samplers", a.sampler or "spos"))
     fp = fingerprint(data=observations_digest(obs), model=model, seed=a.seed,
                      views=a.views, resolution=list(obs.resolution),

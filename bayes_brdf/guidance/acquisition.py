@@ -142,13 +142,6 @@ class AcquisitionResult:
         return [(r["views"], r["metrics"][key]) for r in self.rounds if key in r.get("metrics", {})]
 
 
-def observations_digest_of_views(views) -> str:
-    """A digest of a list of views (poses and lights): what identifies a candidate set."""
-    import hashlib
-    return hashlib.sha256(json.dumps([v.to_dict() for v in views], sort_keys=True, default=str)
-                          .encode()).hexdigest()[:16]
-
-
 def _capture(capture, views, surface) -> Observations:
     got = capture(views)
     if isinstance(got, Observations):
@@ -193,11 +186,11 @@ def guided_acquisition(model: "Callable | str", initial: Observations, candidate
     out = Path(out) if out is not None else None
     obs, used, z, res = initial, [int(i) for i in initial_indices], None, AcquisitionResult()
     surface = initial.surface
-    from ..identity import differences, fingerprint, model_description, observations_digest
+    from ..identity import differences, fingerprint, model_description, observations_digest, views_digest
     setup = {"model": model if isinstance(model, str) else model_description(model), "sampler": str(sampler),
              "particles": particles, "steps": steps, "params": params, "method": method, "k": ks, "radius": radius,
              "warm_start": warm_start, "map_steps": map_steps, "score": score_kw,
-             "candidates": observations_digest_of_views(candidates)}
+             "candidates": views_digest(candidates)}
     for r in range(rounds + 1):
         rdir = out / f"round_{r:02d}" if out is not None else None
         rec_file = rdir / "round.json" if rdir is not None else None
