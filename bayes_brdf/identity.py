@@ -17,6 +17,8 @@ from __future__ import annotations
 import hashlib
 import json
 
+from .render.scene import surface_key
+
 #: the format tag of a fingerprint
 FORMAT = "bayes-brdf-run/1"
 
@@ -50,7 +52,7 @@ def observations_digest(obs) -> str:
     _update(h, obs.mask)
     _update(h, obs.saturated)
     h.update(_views_json(obs.views))
-    h.update(json.dumps({"size": obs.surface.size, "grid": obs.surface.grid}, default=str).encode())
+    h.update(surface_key(obs.surface).encode())
     return h.hexdigest()[:16]
 
 

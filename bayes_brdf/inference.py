@@ -16,6 +16,7 @@ from .observations import Observations
 from .posterior import Posterior
 from .potential import Potential
 from .presets import load_preset
+from .render.scene import surface_state
 from .samplers import make_sampler
 from .samplers.driver import run
 
@@ -110,13 +111,14 @@ def infer(model: "Callable | str | dict", observations: "Observations | ModelDat
             "evaluations": res.evaluations, "steps": res.steps, "identity": identity,
             "model": model.to_dict() if isinstance(model, MaterialModel) else getattr(model, "__name__", str(model)),
             "observations": observations.meta if isinstance(observations, Observations) else {},
-            "surface": {"size": data.observations.surface.size, "grid": data.observations.surface.grid},
+            "surface": surface_state(data.observations.surface)[0],
             "diagnostics": res.diagnostics.to_dict() if res.diagnostics is not None else None}
     if isinstance(model, MaterialModel) and model.sigma == "auto":
         s = model.noise_sigma(data, pot.to_constrained(res.z))
         meta["noise_sigma"] = float(s.mean())
     post = Posterior(pot.to_constrained(res.z), energies, z=res.z, meta=meta, potential=pot, model=model,
-                     log={"seconds": res.seconds, "resumed_from": res.resumed_from, "steps": res.steps})
+                     log={"seconds": res.seconds, "resumed_from": res.resumed_from, "steps": res.steps},
+                     surface=data.observations.surface)
     if map_steps is None:
         map_steps = min(300, res.steps)
     if map_steps:

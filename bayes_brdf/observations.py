@@ -4,7 +4,8 @@ An :class:`Observations` bundle holds, for ``V`` views of one sample:
 
 * ``views``  -- list of :class:`~bayes_brdf.render.views.View` (camera + lights)
 * ``images`` -- ``[V, H, W, 3]`` linear radiance (float32)
-* ``surface`` -- what the cameras look at (a :class:`PlanarSample`)
+* ``surface`` -- what the cameras look at (a :class:`PlanarSample` or a :class:`~bayes_brdf.render.mesh.Mesh`);
+  with the views it is the :attr:`Observations.scene`
 * ``mask``   -- ``[V, H, W]`` bool, ``True`` where a pixel is usable (optional)
 * ``saturated`` -- ``[V, H, W]`` bool, ``True`` where the photo clipped at its
   maximum in any channel: the value is only a lower bound on the radiance (optional)
@@ -18,6 +19,7 @@ import torch
 from torch import Tensor
 
 from .errors import InputError
+from .render.scene import Scene
 from .render.surface import PlanarSample
 from .render.views import View
 
@@ -36,7 +38,7 @@ class Observations:
 
     views: list[View]
     images: Tensor
-    surface: PlanarSample = field(default_factory=PlanarSample)
+    surface: object = field(default_factory=PlanarSample)
     mask: Tensor | None = None
     saturated: Tensor | None = None
     meta: dict = field(default_factory=dict)
@@ -56,6 +58,11 @@ class Observations:
             m = getattr(self, name)
             if m is not None and tuple(m.shape) != tuple(im.shape[:3]):
                 raise InputError(f"{name} has shape {tuple(m.shape)}, expected {tuple(im.shape[:3])}")
+
+    @property
+    def scene(self) -> Scene:
+        """The geometry and the views of these observations, as one :class:`~bayes_brdf.render.scene.Scene`."""
+        return Scene(self.surface, tuple(self.views))
 
     def __len__(self) -> int:
         return len(self.views)

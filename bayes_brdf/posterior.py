@@ -45,7 +45,7 @@ class Posterior:
 
     def __init__(self, particles: dict[str, Tensor], energies: Tensor, *, z: Tensor | None = None,
                  meta: dict | None = None, potential=None, model=None, map_values: dict | None = None,
-                 log: dict | None = None):
+                 log: dict | None = None, surface=None):
         if not particles:
             raise InputError("a posterior needs at least one site")
         ns = {v.shape[0] for v in particles.values()}
@@ -60,6 +60,7 @@ class Posterior:
         #: this session's run log (wall time, the step it resumed from): not saved in the file, which holds
         #: only what determines the posterior, so a resumed run writes the same bytes as an uninterrupted one
         self.log = dict(log or {})
+        self._surface = surface
 
     @property
     def noise_sigma(self) -> float | None:
@@ -103,10 +104,15 @@ class Posterior:
 
     @property
     def surface(self):
-        """The sample surface the observations showed (from the metadata), or ``None``."""
-        from .render.surface import PlanarSample
-        s = self.meta.get("surface")
-        return PlanarSample(**s) if isinstance(s, dict) else None
+        """The geometry the observations showed (a plane or a mesh; saved in the file), or ``None``."""
+        if self._surface is None and isinstance(self.meta.get("surface"), dict):
+            from .render.scene import surface_from_state
+            self._surface = surface_from_state(self.meta["surface"])
+        return self._surface
+
+    @surface.setter
+    def surface(self, value):
+        self._surface = value
 
     def best(self) -> int:
         """Index of the particle with the highest target ``f(x)``."""
@@ -201,11 +207,17 @@ class Posterior:
             t["z"] = self.z.contiguous().cpu()
         for k, v in (self.map_values or {}).items():
             t[f"map/{k}"] = v.contiguous().cpu()
+        meta = self.meta
+        if self._surface is not None:      # the geometry travels in the file (a mesh with its arrays)
+            from .render.scene import surface_state
+            smeta, st = surface_state(self._surface)
+            meta = {**meta, "surface": smeta}
+            t.update({k: v.contiguous().cpu() for k, v in st.items()})
         from .io.outputs import atomic_path
         with atomic_path(path) as tmp:     # a complete file or none, mode 0644 (safetensors alone writes 0600)
             # one metadata entry: safetensors keeps metadata in a hash map, so with two entries their order
             # in the header (and the file's bytes) would change from one process to the next
-            save_file(t, str(tmp), metadata={"bayes-brdf": json.dumps({"format": FORMAT, "meta": self.meta},
+            save_file(t, str(tmp), metadata={"bayes-brdf": json.dumps({"format": FORMAT, "meta": meta},
                                                                       default=str, sort_keys=True)})
         return path
 
@@ -231,7 +243,12 @@ class Posterior:
         parts = {k[5:]: v for k, v in t.items() if k.startswith("site/")}
         mp = {k[4:]: v for k, v in t.items() if k.startswith("map/")} or None
         meta = md.get("meta") or {}
-        return cls(parts, t["energies"], z=t.get("z"), meta=meta, model=_model_from_meta(meta), map_values=mp)
+        surface = None
+        if isinstance(meta.get("surface"), dict):
+            from .render.scene import surface_from_state
+            surface = surface_from_state(meta["surface"], t, where=path)
+        return cls(parts, t["energies"], z=t.get("z"), meta=meta, model=_model_from_meta(meta), map_values=mp,
+                   surface=surface)
 
     def to_arviz(self):
         """An ``arviz.InferenceData`` with one chain whose draws are the particles (and ``energy`` in sample_stats)."""

@@ -88,7 +88,7 @@ def run(a) -> int:
             raise InputError("this posterior's model cannot be rebuilt from its file", where=a.posterior,
                              fix="refit with --views instead of --posterior")
         if post.surface is None:
-            post.meta["surface"] = {"size": full.surface.size, "grid": full.surface.grid}
+            post.surface = full.surface
     else:
         post = sample(a, obs, out)
         post.save(out / "posterior.safetensors")

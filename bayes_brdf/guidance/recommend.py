@@ -2,7 +2,8 @@
 exclusion, and the baselines (low-discrepancy directions, max image-space std).
 
 A view's position in *configuration space* is its unit camera direction and unit light direction seen from
-the sample centre, ``theta = (c, l)``; the distance between two views is the RMS chord
+the centre of the scene's geometry (``surface.center``: the origin for the planar sample), ``theta = (c, l)``
+(a view with several lights: the normalised mean of their unit directions); the distance between two views is the RMS chord
 ``sqrt((|c - c'|^2 + |l - l'|^2) / 2)`` (for collocated views: the chord between the camera directions).
 ``radius`` is given in degrees of that chord's angle: after each pick, candidates closer than it are
 removed for the rest of the batch (Sec. 3.4.2).
@@ -31,20 +32,25 @@ from .scores import CandidateScores, score_views
 METHODS = ("mi", "std", "sobol", "fibonacci", "random")
 
 
+def _unit(x: Tensor) -> Tensor:
+    return x / x.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+
+
 def configuration(views, target=(0.0, 0.0, 0.0)) -> Tensor:
-    """``[V, 6]``: unit camera direction and unit (first) light direction of each view, from ``target``."""
+    """``[V, 6]``: unit camera direction and unit light direction of each view, seen from ``target``
+    (the scene centre); for a view with several lights, the normalised mean of their unit directions."""
     t = torch.tensor(target, dtype=torch.float64)
     rows = []
     for v in views:
-        c = torch.tensor(v.camera.position, dtype=torch.float64) - t
-        l = torch.tensor(v.lights[0].position, dtype=torch.float64) - t
-        rows.append(torch.cat([c / c.norm().clamp_min(1e-12), l / l.norm().clamp_min(1e-12)]))
+        c = _unit(torch.tensor(v.camera.position, dtype=torch.float64) - t)
+        ls = _unit(torch.tensor([l.position for l in v.lights], dtype=torch.float64) - t)
+        rows.append(torch.cat([c, ls[0] if len(ls) == 1 else _unit(ls.mean(0))]))
     return torch.stack(rows)
 
 
-def distances(views_a, views_b) -> Tensor:
+def distances(views_a, views_b, target=(0.0, 0.0, 0.0)) -> Tensor:
     """``[A, B]`` configuration-space distance (RMS chord of camera and light directions)."""
-    a, b = configuration(views_a), configuration(views_b)
+    a, b = configuration(views_a, target), configuration(views_b, target)
     return torch.cdist(a, b) / math.sqrt(2)
 
 
@@ -71,7 +77,7 @@ class Recommendation:
         return d
 
 
-def top_k(values: Tensor, candidates, k: int, radius: float = 0.0, exclude=()) -> list[int]:
+def top_k(values: Tensor, candidates, k: int, radius: float = 0.0, exclude=(), target=(0.0, 0.0, 0.0)) -> list[int]:
     """Greedy batch: repeatedly take the best remaining candidate, then drop all within ``radius`` degrees.
 
     ``exclude``: indices that may not be picked (e.g. views already taken). Returns at most ``k`` indices
@@ -81,7 +87,7 @@ def top_k(values: Tensor, candidates, k: int, radius: float = 0.0, exclude=()) -
     alive = torch.ones(len(candidates), dtype=torch.bool)
     for i in exclude:
         alive[int(i)] = False
-    conf = configuration(candidates) if radius > 0 else None
+    conf = configuration(candidates, target) if radius > 0 else None
     chord = _chord(radius)
     out = []
     while len(out) < k and bool(alive.any()):
@@ -94,16 +100,16 @@ def top_k(values: Tensor, candidates, k: int, radius: float = 0.0, exclude=()) -
 
 
 def low_discrepancy(candidates, k: int, *, offset: int = 0, seed: int = 0, exclude=(),
-                    sequence: str = "sobol") -> list[int]:
+                    sequence: str = "sobol", target=(0.0, 0.0, 0.0)) -> list[int]:
     """The baseline: the next ``k`` points of a scrambled Sobol sequence of camera directions (uniform in
     solid angle over the candidates' zenith range), each mapped to the nearest free candidate camera;
     among candidates sharing that camera (a light stage), the light is picked at random.
 
     ``offset`` is how many baseline views were taken before, so successive calls continue one sequence.
     ``sequence="fibonacci"`` uses a Fibonacci spiral of ``k`` points instead (evenly spread for that ``k``,
-    but not nested: ``offset`` is ignored).
+    but not nested: ``offset`` is ignored). Directions are seen from ``target`` (the scene centre).
     """
-    conf = configuration(candidates)
+    conf = configuration(candidates, target)
     cam = conf[:, :3]
     cmin = float(cam[:, 2].min().clamp(-1, 1))
     if sequence == "fibonacci":
@@ -157,8 +163,10 @@ def recommend(post: "Posterior | SVBRDF", candidates: list, k: int = 1, *, metho
         raise InputError(f"k must be >= 1, got {k}")
     if radius < 0:
         raise InputError(f"radius must be >= 0 degrees, got {radius}")
+    centre = getattr(surface if surface is not None else getattr(post, "surface", None), "center", (0.0, 0.0, 0.0))
     if method in ("sobol", "fibonacci"):
-        idx = low_discrepancy(candidates, k, offset=offset, seed=seed, exclude=exclude, sequence=method)
+        idx = low_discrepancy(candidates, k, offset=offset, seed=seed, exclude=exclude, sequence=method,
+                              target=centre)
     elif method == "random":
         free = [i for i in range(len(candidates)) if i not in set(int(j) for j in exclude)]
         g = torch.Generator().manual_seed(seed * 7919 + offset)
@@ -166,5 +174,5 @@ def recommend(post: "Posterior | SVBRDF", candidates: list, k: int = 1, *, metho
     else:
         if scores is None:
             scores = score_views(post, candidates, surface, **{"seed": seed, **score_kw})
-        idx = top_k(scores.mi if method == "mi" else scores.mean_std, candidates, k, radius, exclude)
+        idx = top_k(scores.mi if method == "mi" else scores.mean_std, candidates, k, radius, exclude, centre)
     return Recommendation(idx, method, scores, [candidates[i] for i in idx])

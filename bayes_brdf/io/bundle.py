@@ -2,8 +2,10 @@
 
 Layout::
 
-    observations.json     format_version, units, surface {size, grid}, resolution,
-                          views (View.to_dict()), image / mask file names, meta
+    observations.json     format_version, units, surface ({type: plane, size, grid} or
+                          {type: mesh, ...}), resolution, views (View.to_dict()),
+                          image / mask file names, meta
+    surface.safetensors   a mesh's arrays (vertices, faces, uv, normals), for mesh scenes
     view_000.exr ...      one image per view: linear float32 EXR (exact), or
                           16-bit PNG holding linear_to_srgb(image / scale, "srgb")
     mask_000.png ...      8-bit 0/255 PNGs, when the observations have a mask
@@ -23,6 +25,7 @@ import torch
 
 from ..errors import InputError
 from ..observations import Observations
+from ..render.scene import surface_from_state, surface_state
 from ..render.surface import PlanarSample
 from ..render.views import View
 from .jsonfile import read_json_object
@@ -30,8 +33,9 @@ from .images import linear_to_srgb, read_raw, srgb_to_linear, to_rgb, write_exr,
 
 __all__ = ["save_observations", "load_observations", "FORMAT_VERSION", "BUNDLE_FILE"]
 
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2        # 2: surfaces may be meshes; a plane bundle is still written as 1 (older readers take it)
 BUNDLE_FILE = "observations.json"
+SURFACE_FILE = "surface.safetensors"
 _PNG_CURVE = "srgb"  # exact piecewise sRGB curve for PNG-stored images
 
 
@@ -94,11 +98,19 @@ def save_observations(obs: Observations, directory, image_format: str = "exr") -
                 e[name] = f"{name}_{i:03d}.png"
                 write_png(d / e[name], m[i].detach().cpu().float(), linear=False, bits=8)
         entries.append(e)
+    smeta, stensors = surface_state(obs.surface)
+    if stensors:
+        from safetensors.torch import save_file
+
+        from .outputs import atomic_path
+        with atomic_path(d / SURFACE_FILE) as tmp:
+            save_file({k: v.contiguous().cpu() for k, v in stensors.items()}, str(tmp))
+        smeta = {**smeta, "file": SURFACE_FILE}
     doc = {
-        "format_version": FORMAT_VERSION,
+        "format_version": 1 if isinstance(obs.surface, PlanarSample) else FORMAT_VERSION,
         "kind": "bayes_brdf.observations",
         "units": (obs.meta or {}).get("units", ""),
-        "surface": {"size": obs.surface.size, "grid": obs.surface.grid},
+        "surface": smeta,
         "resolution": list(obs.resolution),
         "image_format": image_format,
         "png_curve": _PNG_CURVE if image_format == "png" else None,
@@ -116,6 +128,27 @@ def _load_mask(path: Path, shape) -> torch.Tensor:
         raise InputError(f"mask is {a.shape[1]}x{a.shape[0]} but the images are {shape[1]}x{shape[0]}", where=path)
     thr = (full or 1.0) / 2
     return torch.from_numpy(np.ascontiguousarray(a[..., 0] > thr))
+
+
+def _load_surface(meta, jf: Path):
+    if not isinstance(meta, dict):
+        raise InputError("'surface' must be an object ({\"size\": cm, \"grid\": centers|endpoints} for a plane)",
+                         where=jf)
+    tensors = {}
+    if meta.get("file"):
+        sf = jf.parent / str(meta["file"])
+        if not sf.is_file():
+            raise InputError("the surface file listed in observations.json is missing", where=sf,
+                             fix="restore it or re-save the bundle")
+        from safetensors import safe_open
+        try:
+            with safe_open(str(sf), framework="pt") as f:
+                tensors = {k: f.get_tensor(k) for k in f.keys()}
+        except Exception as e:  # noqa: BLE001
+            raise InputError(f"unreadable surface file ({type(e).__name__})", where=sf) from None
+    if meta.get("type", "plane") == "plane" and not isinstance(meta.get("size"), (int, float)):
+        raise InputError("'surface' must be {\"size\": cm, \"grid\": centers|endpoints}", where=jf)
+    return surface_from_state(meta, tensors, where=str(jf))
 
 
 def load_observations(directory) -> Observations:
@@ -145,12 +178,7 @@ def load_observations(directory) -> Observations:
     if not isinstance(ver, int) or ver > FORMAT_VERSION or ver < 1:
         raise InputError(f"unsupported bundle format_version {ver!r} (this version reads 1..{FORMAT_VERSION})",
                          where=jf, fix="upgrade bayes_brdf or re-save the bundle")
-    try:
-        surface = PlanarSample(size=float(doc["surface"]["size"]), grid=doc["surface"].get("grid", "centers"))
-    except InputError as e:
-        raise InputError(str(e), where=jf) from None
-    except (KeyError, TypeError, ValueError, AttributeError):
-        raise InputError("'surface' must be {\"size\": cm, \"grid\": centers|endpoints}", where=jf) from None
+    surface = _load_surface(doc["surface"], jf)
     entries = doc["views"]
     if not isinstance(entries, list) or not entries:
         raise InputError("'views' must be a non-empty list", where=jf)

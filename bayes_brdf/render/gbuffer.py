@@ -3,9 +3,10 @@
 For each pixel of each view: the texture coordinate it sees, its 3-D position,
 the surface frame (tangent, bitangent, normal), the unit direction to the camera,
 the unit direction and squared distance to each light, the light's RGB power
-(with its falloff) and whether the pixel sees the sample at all. Computed once
-per view (analytically for the planar sample), in float64, then stored in the
-requested dtype/device; :class:`GBufferCache` keeps them so that shading never
+(with its falloff and shadowing) and whether the pixel sees the surface at all.
+Computed once per view from the surface's hits (:mod:`.hits`: analytic for the
+planar sample, ray cast for a mesh) and each light's incident terms, in float64,
+then stored in the requested dtype/device; :class:`GBufferCache` keeps them so that shading never
 repeats geometry work.
 
 The pixel -> texel *footprint* (which pixels fall in the same texel of an
@@ -20,7 +21,7 @@ import torch
 from torch import Tensor
 
 from ..errors import InputError
-from .cameras import RectifiedCamera
+from .hits import texel_index
 from .surface import PlanarSample
 from .views import View
 
@@ -60,8 +61,12 @@ class GBuffer:
     texel_grid: tuple | None = None      # ... into a map of this (H, W) (see :meth:`gather`)
 
     @classmethod
-    def build(cls, views: list[View], surface: PlanarSample, *, dtype=torch.float32, device=None) -> "GBuffer":
-        """Compute the G-buffer of ``views`` (all of one resolution) looking at ``surface``."""
+    def build(cls, views: list[View], surface, *, dtype=torch.float32, device=None) -> "GBuffer":
+        """Compute the G-buffer of ``views`` (all of one resolution) looking at ``surface``.
+
+        The surface gives the hits (:meth:`intersect`) and the shadow tests (:meth:`occluded`), each
+        light its incident terms (:meth:`PointLight.incident`); all in float64, then cast.
+        """
         views = list(views)
         if not views:
             raise InputError("no views given", fix="pass at least one View")
@@ -71,10 +76,14 @@ class GBuffer:
                              fix="shade views of different resolutions in separate calls")
         h, w = res.pop()
         L = max(len(v.lights) for v in views)
-        t, b, n = surface.frame()
+        hits = surface.intersect([v.camera for v in views])
+        lpos = torch.zeros(len(views), L, 3, dtype=torch.float64)
+        for k, v in enumerate(views):
+            lpos[k, :len(v.lights)] = torch.tensor([l.position for l in v.lights], dtype=torch.float64)
+        blocked = surface.occluded(hits, lpos)          # [V, L, H, W] bool, or None: nothing casts shadows
         per_view = []
-        for v in views:
-            pos, mask = surface.hit(v.camera)
+        for k, v in enumerate(views):
+            pos, mask = hits.position[k], hits.mask[k]
             cam = torch.tensor(v.camera.position, dtype=torch.float64)[:, None, None]
             vd = cam - pos
             vd = vd / vd.norm(dim=0, keepdim=True).clamp_min(1e-30)
@@ -82,23 +91,14 @@ class GBuffer:
             d2 = torch.ones(L, 1, h, w, dtype=torch.float64)
             scale = torch.zeros(L, 3, h, w, dtype=torch.float64)
             for i, light in enumerate(v.lights):
-                lv = torch.tensor(light.position, dtype=torch.float64)[:, None, None] - pos
-                dd = (lv * lv).sum(0, keepdim=True)
-                if bool((dd <= 0).any() & mask.any()):
-                    raise InputError(f"light {i} of view '{v.name}' lies on the sample surface",
-                                     fix="move the light off the sample plane")
-                ld[i] = lv / dd.clamp_min(1e-30).sqrt()
-                d2[i] = dd
-                pw = torch.tensor(light.power, dtype=torch.float64)[:, None, None]
-                scale[i] = pw / dd.clamp_min(1e-30) if light.falloff else pw.expand(3, h, w)
-            scale = scale * mask
-            per_view.append((pos, vd, ld, d2, scale, mask, surface.texture_coords(pos)))
+                inc = light.incident(pos, mask, None if blocked is None else ~blocked[k, i],
+                                     where=f"{i} of view '{v.name}' ")
+                ld[i], d2[i], scale[i] = inc.direction, inc.dist2, inc.scale
+            per_view.append((vd, ld, d2, scale))
         stack = lambda k: torch.stack([pv[k] for pv in per_view])  # noqa: E731
-        frame = lambda e: e[None, :, None, None].expand(len(views), 3, h, w)  # noqa: E731
-        aligned = all(isinstance(v.camera, RectifiedCamera) for v in views)
-        g = cls(position=stack(0), normal=frame(n), tangent=frame(t), bitangent=frame(b), view_dir=stack(1),
-                light_dir=stack(2), light_dist2=stack(3), light_scale=stack(4), mask=stack(5), uv=stack(6),
-                align_corners=surface.align_corners, aligned=aligned)
+        g = cls(position=hits.position, normal=hits.normal, tangent=hits.tangent, bitangent=hits.bitangent,
+                view_dir=stack(0), light_dir=stack(1), light_dist2=stack(2), light_scale=stack(3), mask=hits.mask,
+                uv=hits.uv, align_corners=hits.align_corners, aligned=hits.aligned)
         return g.to(dtype=dtype, device=device)
 
     @property
@@ -177,15 +177,7 @@ class GBuffer:
 
         Pixels of one view with equal index see the same texel.
         """
-        rh, rw = (resolution, resolution) if isinstance(resolution, int) else resolution
-        u, v = self.uv[..., 0], self.uv[..., 1]
-        if self.align_corners:
-            col, row = (u + 1) / 2 * (rw - 1), (v + 1) / 2 * (rh - 1)
-        else:
-            col, row = (u + 1) / 2 * rw - 0.5, (v + 1) / 2 * rh - 0.5
-        col = col.round().long().clamp(0, rw - 1)
-        row = row.round().long().clamp(0, rh - 1)
-        return torch.where(self.mask, row * rw + col, torch.full_like(col, -1))
+        return texel_index(self.uv, self.mask, resolution, self.align_corners)
 
     def unique_pixel_mask(self, resolution) -> Tensor:
         """``[V, H, W]`` bool: one valid pixel per (view, texel), the first in raster order.

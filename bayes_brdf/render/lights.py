@@ -12,8 +12,22 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import torch
+from torch import Tensor
+
 from ..errors import InputError
 from .cameras import _vec3
+
+
+@dataclass
+class Incident:
+    """What one light delivers to each pixel of one view: unit ``direction [3, H, W]`` towards the light,
+    squared distance ``dist2 [1, H, W]`` and RGB ``scale [3, H, W]`` -- power / distance^2 (or power alone
+    without falloff), times visibility (0 in shadow) and the valid mask."""
+
+    direction: Tensor
+    dist2: Tensor
+    scale: Tensor
 
 
 @dataclass(frozen=True)
@@ -38,3 +52,23 @@ class PointLight:
         if min(p) < 0 or not all(math.isfinite(x) for x in p):
             raise InputError(f"light power must be finite and non-negative, got {p}")
         object.__setattr__(self, "power", p)
+
+    def incident(self, position: Tensor, mask: Tensor, visible: Tensor | None = None, where: str = "") -> Incident:
+        """The light at surface points ``position [3, H, W]`` (float64) where ``mask [H, W]``; ``visible [H, W]``
+        (shadow rays, None: unoccluded) zeroes the pixels it cannot reach.
+
+        Example:
+            >>> p = torch.zeros(3, 1, 1, dtype=torch.float64)
+            >>> PointLight((0, 0, 2.0), 8.0).incident(p, torch.ones(1, 1, dtype=torch.bool)).scale.flatten().tolist()
+            [2.0, 2.0, 2.0]
+        """
+        lv = torch.tensor(self.position, dtype=torch.float64)[:, None, None] - position
+        dd = (lv * lv).sum(0, keepdim=True)
+        if bool((dd <= 0).any() & mask.any()):
+            raise InputError(f"light {where}lies on the surface", fix="move the light off the surface")
+        pw = torch.tensor(self.power, dtype=torch.float64)[:, None, None]
+        scale = pw / dd.clamp_min(1e-30) if self.falloff else pw.expand(3, *position.shape[-2:])
+        scale = scale * mask
+        if visible is not None:
+            scale = scale * visible
+        return Incident(lv / dd.clamp_min(1e-30).sqrt(), dd, scale)

@@ -10,8 +10,14 @@ running from ``+y`` (row 0) to ``-y``. ``grid`` says where texel ``i`` of an
 * ``"endpoints"`` (DeepInverseRendering): ``x_i = (i / (R - 1) - 0.5) * size``,
   i.e. ``linspace(-size/2, size/2, R)``.
 
-Meshes (ray cast by Mitsuba) will implement the same two methods,
-:meth:`hit` and :meth:`texture_coords`.
+Every geometry (this plane, and :class:`~bayes_brdf.render.mesh.Mesh`) offers the same small protocol,
+which is all the G-buffer needs:
+
+* ``intersect(cameras) -> SurfaceHits`` -- where each pixel meets the surface (:mod:`.hits`);
+* ``occluded(hits, light_positions [V, L, 3]) -> [V, L, H, W] bool`` or ``None`` -- shadow tests
+  (``None``: nothing can shadow, as on a plane);
+* ``center`` and ``radius`` -- a bounding sphere, for placing cameras and measuring view directions;
+* ``state()`` -- a JSON-able description plus tensors, so a scene can be saved (:mod:`.scene`).
 """
 from __future__ import annotations
 
@@ -22,6 +28,7 @@ from torch import Tensor
 
 from ..errors import InputError
 from .cameras import PerspectiveCamera, RectifiedCamera
+from .hits import SurfaceHits
 
 
 @dataclass(frozen=True)
@@ -82,6 +89,42 @@ class PlanarSample:
             mask[:] = False  # the camera is below the sample: it sees its back
         pts = torch.where(mask, pts, torch.zeros_like(pts))
         return pts, mask
+
+    def intersect(self, cameras) -> SurfaceHits:
+        """The hits of ``cameras`` (one resolution), in float64; see :class:`~bayes_brdf.render.hits.SurfaceHits`.
+
+        Example:
+            >>> from bayes_brdf.render import PerspectiveCamera
+            >>> h = PlanarSample(2.0).intersect([PerspectiveCamera((0, 0, 3.0), resolution=8)])
+            >>> h.normal[0, :, 0, 0].tolist(), h.aligned
+            ([0.0, 0.0, 1.0], False)
+        """
+        cameras = list(cameras)
+        hits = [self.hit(c) for c in cameras]
+        pos = torch.stack([p for p, _ in hits])
+        V, _, h, w = pos.shape
+        t, b, n = (e[None, :, None, None].expand(V, 3, h, w) for e in self.frame())
+        return SurfaceHits(position=pos, normal=n, tangent=t, bitangent=b, uv=self.texture_coords(pos.movedim(1, 0)),
+                           mask=torch.stack([m for _, m in hits]), align_corners=self.align_corners,
+                           aligned=all(isinstance(c, RectifiedCamera) for c in cameras))
+
+    def occluded(self, hits: SurfaceHits, light_positions: Tensor) -> None:
+        """A plane cannot shadow itself: ``None`` (a light below it is handled by the clamped ``n.l``)."""
+        return None
+
+    @property
+    def center(self) -> tuple[float, float, float]:
+        """Centre of the bounding sphere: the origin."""
+        return (0.0, 0.0, 0.0)
+
+    @property
+    def radius(self) -> float:
+        """Radius of the bounding sphere (half the diagonal)."""
+        return self.size * 2 ** -0.5
+
+    def state(self) -> tuple[dict, dict]:
+        """``({"type": "plane", "size": ..., "grid": ...}, {})`` for saving (see :func:`bayes_brdf.render.scene.surface_from_state`)."""
+        return {"type": "plane", "size": self.size, "grid": self.grid}, {}
 
     def texture_coords(self, points: Tensor) -> Tensor:
         """``grid_sample`` coordinates ``[..., 2]`` in ``[-1, 1]`` of positions ``[3, ...]``.

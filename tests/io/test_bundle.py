@@ -75,7 +75,7 @@ def test_json_layout(tmp_path):
     save_observations(obs, tmp_path)
     doc = json.loads((tmp_path / "observations.json").read_text())
     assert doc["format_version"] == 1 and doc["units"] == "cm"
-    assert doc["surface"] == {"size": 5.5, "grid": "endpoints"}
+    assert doc["surface"] == {"type": "plane", "size": 5.5, "grid": "endpoints"}
     assert [e["view"] for e in doc["views"]] == [json.loads(json.dumps(v.to_dict())) for v in obs.views]
     assert [e["image"] for e in doc["views"]] == ["view_000.exr", "view_001.exr", "view_002.exr"]
     assert all("mask" not in e for e in doc["views"])
