@@ -93,7 +93,7 @@ class PerspectiveCamera:
         xs = ((torch.arange(w, dtype=torch.float64) + 0.5) / w * 2 - 1) * tx
         ys = (1 - (torch.arange(h, dtype=torch.float64) + 0.5) / h * 2) * ty
         d = f[:, None, None] + xs[None, None, :] * r[:, None, None] + ys[None, :, None] * u[:, None, None]
-        d = d / d.norm(dim=0, keepdim=True)
+        d = d / (d * d).sum(0, keepdim=True).sqrt()      # (torch's norm over dim 0 is ~20x slower on CPU)
         o = torch.tensor(self.position, dtype=torch.float64)
         return o.to(device=device, dtype=dtype), d.to(device=device, dtype=dtype)
 

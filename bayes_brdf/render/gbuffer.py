@@ -86,7 +86,7 @@ class GBuffer:
             pos, mask = hits.position[k], hits.mask[k]
             cam = torch.tensor(v.camera.position, dtype=torch.float64)[:, None, None]
             vd = cam - pos
-            vd = vd / vd.norm(dim=0, keepdim=True).clamp_min(1e-30)
+            vd = vd / (vd * vd).sum(0, keepdim=True).sqrt().clamp_min(1e-30)
             ld = torch.zeros(L, 3, h, w, dtype=torch.float64)
             d2 = torch.ones(L, 1, h, w, dtype=torch.float64)
             scale = torch.zeros(L, 3, h, w, dtype=torch.float64)

@@ -49,6 +49,7 @@ class SurfaceHits:
     mask: Tensor
     align_corners: bool
     aligned: bool = False
+    geometric_normal: Tensor | None = None   #: ``[V, 3, H, W]`` face normals facing the camera (meshes; None: = normal)
 
     @property
     def num_views(self) -> int:

@@ -1,0 +1,105 @@
+"""Mesh G-buffers by Mitsuba ray casting, against closed forms: the analytic sphere, the plane, box shadows."""
+import math
+
+import pytest
+import torch
+
+from bayes_brdf.errors import InputError
+from bayes_brdf.mitsuba_env import find_llvm19
+from bayes_brdf.render import SVBRDF, PerspectiveCamera, PlanarSample, PointLight, RectifiedCamera, View
+from bayes_brdf.render.gbuffer import GBUFFERS, GBuffer
+from bayes_brdf.render.mesh import Mesh
+from bayes_brdf.render.shade import render
+
+pytestmark = pytest.mark.skipif(find_llvm19() is None, reason="Mitsuba's llvm_ad_rgb needs libLLVM 19 (scripts/setup.sh)")
+
+
+def _cams():
+    return [PerspectiveCamera((0.0, 0.3, 4.0), resolution=48, fov=40),
+            PerspectiveCamera((3.0, -1.0, 1.5), up=(0, 0, 1), resolution=48, fov=40)]
+
+
+def test_sphere_hits_positions_normals_and_uv_match_the_analytic_sphere():
+    r = 1.0
+    hits = Mesh.sphere(r, rings=96, segments=192).intersect(_cams())
+    for k, cam in enumerate(_cams()):
+        o, d = cam.rays(dtype=torch.float64)
+        b = (o[:, None, None] * d).sum(0)                  # analytic ray-sphere hit: t^2 + 2 b t + |o|^2 - r^2 = 0
+        disc = b * b - (o @ o - r * r)
+        inside = disc > 0.02                                # leave the silhouette's grazing pixels out
+        m = hits.mask[k]
+        assert bool((m == (disc > 0))[disc.abs() > 0.02].all())        # which pixels see the sphere
+        t = -b - disc.clamp_min(0).sqrt()
+        p = o[:, None, None] + t * d
+        sel = inside & m
+        assert int(sel.sum()) > 400
+        assert float((hits.position[k][:, sel] - p[:, sel]).norm(dim=0).max()) < 2e-3 * r   # tessellation sag
+        nrm = p / r
+        assert float((hits.normal[k][:, sel] - nrm[:, sel]).norm(dim=0).max()) < 2e-3
+        frame = torch.stack([hits.tangent[k], hits.bitangent[k], hits.normal[k]])[:, :, sel]
+        gram = torch.einsum("icp,jcp->ijp", frame, frame)
+        assert float((gram - torch.eye(3, dtype=torch.float64)[..., None]).abs().max()) < 1e-5   # orthonormal
+        phi = torch.atan2(p[1], p[0]) % (2 * math.pi)
+        theta = torch.acos(p[2].clamp(-1, 1))
+        away = sel & (phi > 0.05) & (phi < 2 * math.pi - 0.05)          # off the u seam
+        u, v = (hits.uv[k][..., 0] + 1) / 2, (1 - hits.uv[k][..., 1]) / 2
+        assert float((u[away] - phi[away] / (2 * math.pi)).abs().max()) < 1e-3
+        assert float((v[away] - (1 - theta[away] / math.pi)).abs().max()) < 1e-3
+        # the tangent follows +u: along d p / d phi = (-sin phi, cos phi, 0)
+        tan = torch.stack([-phi.sin(), phi.cos(), torch.zeros_like(phi)])
+        assert float((hits.tangent[k][:, away] * tan[:, away]).sum(0).min()) > 0.99
+
+
+def test_plane_mesh_gives_the_planar_samples_gbuffer_and_images():
+    views = [View.collocated(c, 5.0) for c in _cams()[:1]] + \
+        [View(PerspectiveCamera((-1.0, 2.0, 2.5), resolution=48), (PointLight((1.0, 1.0, 2.0), 3.0),))]
+    gp = GBuffer.build(views, PlanarSample(2.0), dtype=torch.float64)
+    gm = GBuffer.build(views, Mesh.plane(2.0), dtype=torch.float64)
+    both = gp.mask & gm.mask
+    assert int((gp.mask != gm.mask).sum()) <= 4 and int(both.sum()) > 1000     # edge pixels may differ
+    for f in ("position", "normal", "tangent", "bitangent", "view_dir"):
+        a, b = getattr(gp, f).expand_as(getattr(gm, f)), getattr(gm, f)
+        assert float((a - b).abs().permute(1, 0, 2, 3)[:, both].max()) < 1e-5, f
+    assert float((gp.uv - gm.uv)[both].abs().max()) < 1e-5
+    maps = SVBRDF(torch.rand(3, 16, 16, dtype=torch.float64), torch.rand(1, 16, 16, dtype=torch.float64) * .8 + .1,
+                  torch.full((3, 1, 1), 0.04, dtype=torch.float64),
+                  torch.nn.functional.normalize(torch.rand(3, 16, 16, dtype=torch.float64) * 0.4 +
+                                                torch.tensor([-0.2, -0.2, 1.0], dtype=torch.float64)[:, None, None], dim=0))
+    ip, im = render(maps, views, PlanarSample(2.0))[0], render(maps, views, Mesh.plane(2.0))[0]
+    assert float((ip - im)[both].abs().max() / ip[both].abs().max()) < 1e-4    # normal map included
+
+
+def _box_shadow(q, light, lo, hi):
+    """Slab test: does the segment q -> light cross the box [lo, hi]? (q [N, 3])"""
+    d = light[None] - q
+    with torch.no_grad():
+        t0 = (lo[None] - q) / d
+        t1 = (hi[None] - q) / d
+    tmin = torch.minimum(t0, t1).amax(1)
+    tmax = torch.maximum(t0, t1).amin(1)
+    return (tmax >= tmin.clamp_min(1e-6)) & (tmin < 1)
+
+
+def test_block_casts_the_analytic_shadow_on_the_ground():
+    mesh = Mesh.block_on_plane(2.0, (0.5, 0.5, 0.5))
+    light = PointLight((2.5, 0.4, 1.2), 10.0)
+    view = View(PerspectiveCamera((0.0, -0.5, 4.0), resolution=64, fov=40), (light,))
+    g = GBuffer.build([view], mesh, dtype=torch.float64)
+    pos = g.position[0].permute(1, 2, 0)
+    ground = g.mask[0] & (pos[..., 2].abs() < 1e-6)
+    q = pos[ground]
+    expect = _box_shadow(q, torch.tensor(light.position, dtype=torch.float64),
+                         torch.tensor([-0.25, -0.25, 0.0], dtype=torch.float64),
+                         torch.tensor([0.25, 0.25, 0.5], dtype=torch.float64))
+    lit = g.light_scale[0, 0, 0][ground] > 0
+    assert int(expect.sum()) > 50 and int((~expect).sum()) > 500
+    # exact away from the shadow's edge: a pixel's hit point near the boundary may go either way in float32
+    assert int((lit == expect).sum()) <= max(3, int(0.01 * len(q)))      # lit exactly where not shadowed
+
+
+def test_mesh_gbuffers_are_cached_and_rectified_cameras_refused():
+    mesh = Mesh.sphere(rings=16, segments=32)
+    views = (View.collocated(_cams()[0]),)
+    assert GBUFFERS.get(views, mesh) is GBUFFERS.get(views, Mesh.sphere(rings=16, segments=32))
+    with pytest.raises(InputError, match="cannot look at a mesh"):
+        GBuffer.build([View.collocated(RectifiedCamera((0, 0, 3.0), 8))], mesh)
