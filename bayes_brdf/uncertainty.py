@@ -57,7 +57,7 @@ def resolve_surface(post, surface):
     s = getattr(post, "surface", None)
     if s is None:
         raise InputError("the sample surface of this posterior is unknown",
-                         fix="pass surface=PlanarSample(size) (the capture's observations.surface)")
+                         fix="pass surface= (the capture's observations.surface: a PlanarSample or a Mesh)")
     return s
 
 

@@ -59,6 +59,7 @@ class GBuffer:
     aligned: bool
     texel: Tensor | None = None          # gathered pixels of aligned views: flat texel index [V, H, W] ...
     texel_grid: tuple | None = None      # ... into a map of this (H, W) (see :meth:`gather`)
+    gathered: bool = False               # True for the 1 x K view of selected pixels :meth:`gather` returns
 
     @classmethod
     def build(cls, views: list[View], surface, *, dtype=torch.float32, device=None) -> "GBuffer":
@@ -170,7 +171,7 @@ class GBuffer:
             src = replace(self, texel=idx, texel_grid=(h, w))
         out = {f.name: pick(getattr(src, f.name)).contiguous() for f in fields(src)
                if isinstance(getattr(src, f.name), Tensor)}
-        return replace(src, aligned=False, **out)
+        return replace(src, aligned=False, gathered=True, **out)
 
     def texel_index(self, resolution) -> Tensor:
         """Footprint: flat index ``[V, H, W]`` of the nearest texel of an ``(R_h, R_w)`` map (-1 if invalid).

@@ -21,7 +21,7 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from ..errors import InputError
-from . import fused
+from . import fused, texels
 from .gbuffer import GBUFFERS, GBuffer
 from .maps import SVBRDF
 from .surface import PlanarSample
@@ -44,6 +44,13 @@ def lookup(tex: Tensor, g: GBuffer) -> Tensor:
     if g.texel is not None and (ht, wt) == tuple(g.texel_grid):       # gathered pixels of aligned views
         V, (h, w) = g.num_views, g.resolution
         return t.flatten(-2).index_select(-1, g.texel.reshape(-1)).reshape(n, c, V, h, w).transpose(1, 2)
+    if g.gathered:                        # gathered pixels (a mesh's valid pixels): bilinear taps, sparse product
+        memo = g.__dict__.setdefault("_taps", {})
+        key = (ht, wt, t.dtype, str(t.device))
+        if key not in memo:
+            memo[key] = texels.tap_matrix(g.uv.reshape(-1, 2), (ht, wt), g.align_corners, dtype=t.dtype,
+                                          device=t.device)
+        return texels.gather(t, *memo[key]).reshape(n, c, *g.resolution)[:, None]
     V, (h, w) = g.num_views, g.resolution
     grid = g.uv.to(t.dtype).reshape(1, V * h, w, 2).expand(n, -1, -1, -1)
     s = F.grid_sample(t, grid, mode="bilinear", padding_mode="border", align_corners=g.align_corners)
@@ -178,6 +185,23 @@ def render(maps: SVBRDF, views, surface: PlanarSample | None = None, **kw) -> Te
     return shade(maps, g, **kw)
 
 
+def compacted(g: GBuffer) -> tuple[GBuffer, Tensor]:
+    """``(G-buffer of the valid pixels of g as one 1 x K view, the selection [V, H, W])``, kept on ``g``.
+
+    Example:
+        >>> from bayes_brdf.render import collocated_views
+        >>> g = GBuffer.build(collocated_views(2, 3.0, resolution=8), PlanarSample(2.0))
+        >>> c, sel = compacted(g)
+        >>> c.resolution == (1, int(g.mask.sum()))
+        True
+    """
+    hit = g.__dict__.get("_compacted")
+    if hit is None:
+        sel = g.mask
+        hit = g.__dict__["_compacted"] = (g.gather(sel), sel)
+    return hit
+
+
 def shade_loss(maps: SVBRDF, g: GBuffer, target: Tensor, weight: Tensor | float = 1.0, *, kind: str = "l1",
                ks_factor: bool = True, eps: float = 1e-8, chunk_views: int | None = None,
                backend: str = "auto") -> Tensor:
@@ -203,10 +227,23 @@ def shade_loss(maps: SVBRDF, g: GBuffer, target: Tensor, weight: Tensor | float 
     """
     if kind not in ("l1", "l2"):
         raise InputError(f"unknown loss kind '{kind}'", fix="use l1 (Laplace) or l2 (Gaussian)")
-    n, g, chunks = _chunks(maps, g, eps, chunk_views)
     V, (h, w) = g.num_views, g.resolution
     if tuple(target.shape) != (V, h, w, 3):
         raise InputError(f"target images have shape {tuple(target.shape)}, expected {(V, h, w, 3)}")
+    if not (g.aligned or g.gathered) and chunk_views is None:
+        # views whose pixels are not the texels (a mesh, perspective views of the plane): only the pixels that
+        # see the surface, as one 1 x K view, so masked pixels cost nothing and the fused kernel applies
+        c, sel = compacted(g)
+        wt = torch.as_tensor(weight, device=target.device, dtype=target.dtype)
+        wt = wt.expand(V, h, w) if wt.dim() < 3 else wt
+        loss = shade_loss(maps, c, target[sel][None, None], wt[sel][None, None], kind=kind, ks_factor=ks_factor,
+                          eps=eps, backend=backend)
+        off = ~sel                        # pixels off the surface render 0: their loss does not depend on the maps
+        if bool(off.any()):
+            y = target[off].to(loss.dtype)
+            loss = loss + (wt[off].to(loss.dtype)[:, None] * (y.abs() if kind == "l1" else y * y)).sum()
+        return loss
+    n, g, chunks = _chunks(maps, g, eps, chunk_views)
     dev, dt = maps.albedo.device, maps.albedo.dtype
     y = target.to(device=dev, dtype=dt).permute(0, 3, 1, 2)
     wt = torch.as_tensor(weight, device=dev, dtype=dt)

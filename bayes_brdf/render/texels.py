@@ -1,0 +1,79 @@
+"""Texture lookup at arbitrary pixels as a sparse matrix: pixels gather texels, gradients scatter back.
+
+A pixel at ``grid_sample`` coordinate ``uv`` reads its map bilinearly from four texels; over ``K`` pixels
+that is a ``K x T`` matrix ``S`` with four entries per row (``T`` texels), built once per G-buffer and map
+size (:func:`tap_matrix`). The lookup of maps ``[n, C, T]`` is ``S`` applied to every channel, and its
+gradient is ``S^T`` applied to the pixels' gradients: one sparse product each way, parallel, with no
+atomics. Padding is ``"border"`` (coordinates clamped to the outermost texel centres), exactly as
+``F.grid_sample(..., mode="bilinear", padding_mode="border")`` (tests check it): atlas texels no pixel
+reads get no gradient and keep their prior.
+"""
+from __future__ import annotations
+
+import warnings
+
+import torch
+from torch import Tensor
+
+
+def bilinear_taps(uv: Tensor, resolution, align_corners: bool) -> tuple[Tensor, Tensor]:
+    """Flat texel indices ``[K, 4]`` and weights ``[K, 4]`` of bilinear lookups at ``uv [K, 2]`` in an ``(H, W)`` map.
+
+    Example:
+        >>> idx, w = bilinear_taps(torch.tensor([[0.0, 0.0]]), (2, 2), align_corners=False)   # the map's centre
+        >>> idx.tolist(), w.tolist()
+        ([[0, 1, 2, 3]], [[0.25, 0.25, 0.25, 0.25]])
+    """
+    h, w = resolution
+    u, v = uv[:, 0].double(), uv[:, 1].double()
+    if align_corners:
+        x, y = (u + 1) / 2 * (w - 1), (v + 1) / 2 * (h - 1)
+    else:
+        x, y = (u + 1) / 2 * w - 0.5, (v + 1) / 2 * h - 0.5
+    x, y = x.clamp(0, w - 1), y.clamp(0, h - 1)                 # padding_mode="border"
+    x0, y0 = x.floor().clamp(max=max(w - 2, 0)), y.floor().clamp(max=max(h - 2, 0))
+    fx, fy = x - x0, y - y0
+    x0, y0 = x0.long(), y0.long()
+    x1, y1 = (x0 + 1).clamp(max=w - 1), (y0 + 1).clamp(max=h - 1)
+    idx = torch.stack([y0 * w + x0, y0 * w + x1, y1 * w + x0, y1 * w + x1], dim=1)
+    wt = torch.stack([(1 - fx) * (1 - fy), fx * (1 - fy), (1 - fx) * fy, fx * fy], dim=1)
+    return idx, wt
+
+
+def tap_matrix(uv: Tensor, resolution, align_corners: bool, dtype=torch.float32, device=None) -> tuple[Tensor, Tensor]:
+    """``(S, S^T)``: the ``K x T`` lookup matrix of :func:`bilinear_taps` and its transpose, both sparse CSR."""
+    idx, wt = bilinear_taps(uv, resolution, align_corners)
+    K, T = idx.shape[0], resolution[0] * resolution[1]
+    rows = torch.arange(K).repeat_interleave(4)
+    with warnings.catch_warnings():      # torch calls its CSR support "beta"; the products used here are tested
+        warnings.simplefilter("ignore", UserWarning)
+        coo = torch.sparse_coo_tensor(torch.stack([rows, idx.reshape(-1)]), wt.reshape(-1), (K, T),
+                                      check_invariants=True).coalesce()
+        S = coo.to(dtype=dtype, device=device).to_sparse_csr()
+        St = coo.t().coalesce().to(dtype=dtype, device=device).to_sparse_csr()
+    return S, St
+
+
+class _Gather(torch.autograd.Function):
+    # pixel-major dense operands ([T, nC] and [K, nC], contiguous): several times faster than the transposed
+    # layouts with torch's CSR products on CPU (measured: 13 + 8 ms vs 19 + 87 ms for K = 81k, nC = 80)
+    @staticmethod
+    def forward(ctx, x, S, St):
+        ctx.St = St
+        return torch.sparse.mm(S, x.t().contiguous()).t()
+
+    @staticmethod
+    def backward(ctx, g):
+        return torch.sparse.mm(ctx.St, g.t().contiguous()).t(), None, None
+
+
+def gather(tex: Tensor, S: Tensor, St: Tensor) -> Tensor:
+    """Maps ``tex [n, C, H, W]`` read at the pixels of ``S``: ``[n, C, K]`` (differentiable w.r.t. ``tex``).
+
+    Example:
+        >>> S, St = tap_matrix(torch.tensor([[0.0, 0.0], [-0.5, -0.5]]), (2, 2), False)
+        >>> gather(torch.arange(4.0).view(1, 1, 2, 2), S, St).tolist()   # the centre, then texel 0
+        [[[1.5, 0.0]]]
+    """
+    n, c, h, w = tex.shape
+    return _Gather.apply(tex.reshape(n * c, h * w), S, St).reshape(n, c, -1)

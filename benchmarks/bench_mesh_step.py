@@ -1,0 +1,92 @@
+"""A per-texel SPOS step on a mesh against the plane's at the same number of pixels.
+
+Usage:
+    python benchmarks/bench_mesh_step.py                 # the bunny: 128^2 texture, 20 views of 128^2, 20 particles
+    python benchmarks/bench_mesh_step.py --mesh sphere --views 10 --res 64 --tex 64
+
+Mesh row: the bunny (``../shared/data``; y-up, xatlas atlas) under 20 collocated perspective views of
+128^2 around it, the ``per_texel(128, albedo="rgb")`` model (albedo and roughness per texel), 20
+particles; the pixels that see the mesh are what the likelihood sums over. Plane row: the planar
+sample under rectified collocated views (one pixel per texel: the fused native kernel's fast path),
+with the views' resolution chosen so the plane has the same number of pixels as the mesh's valid
+ones, texture resolution = image resolution. Both rows: ``Potential.value_and_grad`` (energies and
+gradients of all particles) and one ``spos`` step, median ms over repeats after warm-up; the ratio
+mesh / plane is the number the issue bounds (at most 1.5).
+"""
+from __future__ import annotations
+
+import argparse
+import math
+import statistics
+import time
+from pathlib import Path
+
+import torch
+
+from bayes_brdf.materials import make_material
+from bayes_brdf.models import ModelData, per_texel
+from bayes_brdf.observations import Observations
+from bayes_brdf.potential import Potential
+from bayes_brdf.render import PlanarSample, collocated_views
+from bayes_brdf.render.mesh import Mesh
+from bayes_brdf.render.shade import render
+from bayes_brdf.samplers import make_sampler
+
+BUNNY = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "psdr_assets" / "bunny_low.obj"
+
+
+def setup(surface, views, tex, particles):
+    truth = make_material("tiles", tex, seed=0)
+    img = render(truth, views, surface)[0]
+    data = ModelData.from_observations(Observations(views, img, surface))
+    pot = Potential(per_texel(tex, albedo="rgb"), (data,))
+    smp, cfg = make_sampler("spos", run={"particles": particles})
+    state = smp.init(pot.init(particles, seed=0), pot, torch.Generator().manual_seed(0))
+    return data, pot, smp, state
+
+
+def timeit(fn, repeats, warmup=2):
+    for _ in range(warmup):
+        fn()
+    ts = []
+    for _ in range(repeats):
+        t = time.perf_counter()
+        fn()
+        ts.append(time.perf_counter() - t)
+    return statistics.median(ts) * 1e3
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--mesh", default="bunny", choices=("bunny", "sphere", "bowl"))
+    ap.add_argument("--views", type=int, default=20)
+    ap.add_argument("--res", type=int, default=128)
+    ap.add_argument("--tex", type=int, default=128)
+    ap.add_argument("--particles", type=int, default=20)
+    ap.add_argument("--repeats", type=int, default=5)
+    a = ap.parse_args(argv)
+    mesh = {"bunny": lambda: Mesh.load(BUNNY, up="y"), "sphere": Mesh.sphere, "bowl": Mesh.bowl}[a.mesh]()
+    mviews = collocated_views(a.views, 2.6 * mesh.radius, resolution=a.res, target=mesh.center, fov=45,
+                              method="sobol", power=(2.6 * mesh.radius) ** 2)
+    rows = {}
+    md, mpot, msmp, mstate = setup(mesh, mviews, a.tex, a.particles)
+    pixels = int(md.weight.count_nonzero())
+    side = max(2, round(math.sqrt(pixels / a.views)))
+    pviews = collocated_views(a.views, 15.0, camera="rectified", resolution=side, power=1500.0, method="sobol")
+    pd, ppot, psmp, pstate = setup(PlanarSample(10.0), pviews, side, a.particles)
+    for name, pot, smp, state in (("mesh", mpot, msmp, mstate), ("plane", ppot, psmp, pstate)):
+        rng = torch.Generator().manual_seed(0)
+        vg = timeit(lambda: pot.value_and_grad(state.z), a.repeats)
+        st = timeit(lambda: smp.step(state, 0, pot, rng), a.repeats)
+        rows[name] = (vg, st)
+    print(f"{a.mesh}: {mesh.num_faces} faces, texture {a.tex}^2, {a.views} views of {a.res}^2 -> {pixels} valid pixels; "
+          f"plane: {a.views} rectified views of {side}^2 = {a.views * side * side} pixels; {a.particles} particles, "
+          f"{torch.get_num_threads()} threads")
+    print(f"{'':8s}{'value_and_grad ms':>20s}{'spos step ms':>16s}")
+    for k, (vg, st) in rows.items():
+        print(f"{k:8s}{vg:20.1f}{st:16.1f}")
+    print(f"{'ratio':8s}{rows['mesh'][0] / rows['plane'][0]:20.2f}{rows['mesh'][1] / rows['plane'][1]:16.2f}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,54 @@
+"""A posterior on a mesh: per-texel maps of a sphere seen from above, sampled, saved and used downstream."""
+import warnings
+
+import pytest
+import torch
+
+import bayes_brdf as bb
+from bayes_brdf.mitsuba_env import find_llvm19
+from bayes_brdf.render import SVBRDF, collocated_views
+from bayes_brdf.render.gbuffer import GBUFFERS
+from bayes_brdf.render.mesh import Mesh
+from bayes_brdf.render.shade import render
+from bayes_brdf.uncertainty import image_std
+
+pytestmark = pytest.mark.skipif(find_llvm19() is None, reason="Mitsuba's llvm_ad_rgb needs libLLVM 19")
+
+R = 16
+
+
+@pytest.fixture(scope="module")
+def fitted():
+    mesh = Mesh.sphere(1.0, rings=32, segments=64)
+    views = collocated_views(8, 3.5, resolution=32, max_zenith=60, power=12.0)     # the upper half only
+    g = torch.Generator().manual_seed(0)
+    truth = SVBRDF(torch.rand(3, R, R, generator=g) * 0.6 + 0.2, torch.rand(1, R, R, generator=g) * 0.5 + 0.2,
+                   torch.full((3, 1, 1), 0.04), torch.tensor([0, 0, 1.0]).view(3, 1, 1))
+    obs = bb.Observations(views, render(truth, views, mesh)[0], mesh)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        post = bb.infer(bb.models.per_texel(resolution=R), obs, "spos", steps=200, particles=8, progress=False)
+    seen = torch.zeros(R * R, dtype=torch.bool)
+    idx = GBUFFERS.get(tuple(views), mesh).texel_index(R)
+    seen[idx[idx >= 0]] = True
+    return mesh, views, truth, post, seen.reshape(R, R)
+
+
+def test_texels_no_view_sees_keep_the_prior(fitted):
+    mesh, views, truth, post, seen = fitted
+    sd = post.std("albedo").mean(0)
+    assert 40 < int(seen.sum()) < R * R - 40
+    prior_sd = 12 ** -0.5                                     # uniform prior on [0, 1]
+    assert float(sd[~seen].mean()) > 0.8 * prior_sd           # unseen: about the prior's spread (8 particles)
+    assert float(sd[seen].mean()) < 0.4 * prior_sd            # seen: pinned down by the photos
+    err = (post.mean("albedo") - truth.albedo).abs().mean(0)
+    assert float(err[seen].median()) < 0.1
+
+
+def test_mesh_posterior_file_keeps_the_mesh_and_predicts_novel_views(fitted, tmp_path):
+    mesh, views, truth, post, seen = fitted
+    back = bb.Posterior.load(post.save(tmp_path / "post.safetensors"))
+    assert back.surface == mesh and back.surface.num_faces == mesh.num_faces
+    novel = collocated_views(2, 3.5, resolution=24, method="sobol", seed=3, power=12.0)
+    std = image_std(back, novel)                              # Eq. 11 on novel views, surface from the file
+    assert std.shape == (2, 24, 24, 3) and bool((std >= 0).all()) and float(std.max()) > 0
