@@ -7,13 +7,17 @@
  * with A = scale * (n.l), q = (1 - ks) / pi (or 1 / pi), F = ks (1 - w) + w,
  * S = D G / (4 (n.l)(n.v)), w the Fresnel weight (precomputed per view and light).
  *
- * Layout (contiguous, channel-first, P = H * W pixels = texels):
- *   kd, ks [n, 3, P]; r [n, P]
+ * Layout (contiguous, channel-first, P = H * W pixels):
+ *   kd, ks [n, 3, P]; r [n, P]    -- pixels are texels (rectified views), or, with taps (tidx != NULL):
+ *   kd, ks [n, 3, T]; r [n, T]    -- texel maps read bilinearly: pixel p is sum_k tw[p, k] map[tidx[p, k]]
+ *                                    (tidx int32 [P, 4], tw [P, 4]); gradients scatter back the same way
  *   nl, nh2 = (n.h)^2, w [V, L, P]; nv [V, P]; A = scale * (n.l) [V, L, 3, P]
  *   y, gout-per-view [.., 3, P]; wgt [V, P]
  * Parallel over blocks of pixels, particles inside (the block's geometry stays in
  * cache); each (block, particle) owns its outputs, so the
- * results do not depend on the thread schedule. Views and lights are the inner
+ * results do not depend on the thread schedule. With taps, gradients scatter into
+ * texels that many pixels share: then parallel over particles, blocks inside, each
+ * particle's gradient maps owned by one thread (deterministic, no atomics). Views and lights are the inner
  * loops, so the maps are read once and the gradients stay in registers/L1.
  */
 #include <math.h>
@@ -55,99 +59,155 @@ static const REAL INV_PI = (REAL)0.318309886183790671538;
         o2[j] += A2[j] * (KD2[j] * (1 - kf * KS2[j]) * INV_PI + s * (KS2[j] * (1 - wj) + wj)); \
     }
 
-void bb_shade(int64_t mode, int64_t n, int64_t V, int64_t L, int64_t P, int64_t ks_factor, int64_t l2,
-              int64_t need_grad, int64_t nthreads,
-              const REAL *restrict kd, const REAL *restrict r, const REAL *restrict ks,
-              const REAL *restrict nl, const REAL *restrict nv, const REAL *restrict nh2,
-              const REAL *restrict w, const REAL *restrict amp,
-              const REAL *restrict y, const REAL *restrict wgt, const REAL *restrict gout,
-              REAL *restrict out, double *restrict epart, REAL *restrict gkd, REAL *restrict gr, REAL *restrict gks)
+struct args {
+    int64_t mode, n, V, L, P, T, l2, grad, nb;
+    REAL kf;
+    const int32_t *tidx; const REAL *tw;
+    const REAL *kd, *r, *ks, *nl, *nv, *nh2, *w, *amp, *y, *wgt, *gout;
+    REAL *out; double *epart; REAL *gkd, *gr, *gks;
+};
+
+static inline void block(const struct args *restrict q, const int64_t i, const int64_t b)
 {
-    const int64_t nb = (P + BLK - 1) / BLK;
-    const int grad = (mode == MODE_IMAGE_BWD) || (mode == MODE_LOSS && need_grad);
-    const REAL kf = ks_factor ? (REAL)1 : (REAL)0;  /* q = (1 - kf ks) / pi */
-    /* blocks outside, particles inside: a block's geometry (all views) stays in cache across particles */
-#pragma omp parallel for schedule(static) num_threads(nthreads)
-    for (int64_t b = 0; b < nb; b++) {
-        for (int64_t i = 0; i < n; i++) {
-            const int64_t p0 = b * BLK;
-            const int64_t m = (P - p0) < BLK ? (P - p0) : BLK;
-            const REAL *KD0 = kd + i * 3 * P + p0, *KD1 = KD0 + P, *KD2 = KD0 + 2 * P;
-            const REAL *KS0 = ks + i * 3 * P + p0, *KS1 = KS0 + P, *KS2 = KS0 + 2 * P;
-            const REAL *R = r + i * P + p0;
-            REAL akd0[BLK] = {0}, akd1[BLK] = {0}, akd2[BLK] = {0}, aks0[BLK] = {0}, aks1[BLK] = {0},
-                 aks2[BLK] = {0}, ar[BLK] = {0}, e[BLK] = {0};
-            REAL o0[BLK], o1[BLK], o2[BLK], g0[BLK], g1[BLK], g2[BLK];
-            REAL sS[LMAX][BLK], sD[LMAX][BLK];  /* S and S * dlnS/dr per light, kept for the gradient pass */
-            for (int64_t v = 0; v < V; v++) {
-                const REAL *NV = nv + v * P + p0;
-                {  /* radiance of this view, and the specular terms the gradient pass reuses */
-                    for (int64_t j = 0; j < BLK; j++) o0[j] = o1[j] = o2[j] = 0;
-                    for (int64_t l = 0; l < L; l++) {
-                        const int64_t vl = v * L + l;
-                        const REAL *NL = nl + vl * P + p0, *NH2 = nh2 + vl * P + p0, *W = w + vl * P + p0;
-                        const REAL *A0 = amp + vl * 3 * P + p0, *A1 = A0 + P, *A2 = A0 + 2 * P;
-                        if (grad) { SPEC_LOOP(1) } else { SPEC_LOOP(0) }
-                    }
-                }
-                if (mode == MODE_IMAGE_FWD) {
-                    REAL *OUT = out + ((i * V + v) * 3) * P + p0;
-                    for (int64_t j = 0; j < m; j++) { OUT[j] = o0[j]; OUT[P + j] = o1[j]; OUT[2 * P + j] = o2[j]; }
-                    continue;
-                }
-                if (mode == MODE_LOSS) {
-                    const REAL *Y0 = y + v * 3 * P + p0, *Y1 = Y0 + P, *Y2 = Y0 + 2 * P, *WG = wgt + v * P + p0;
-                    if (l2) {
+    const int64_t mode = q->mode, V = q->V, L = q->L, P = q->P, T = q->T, l2 = q->l2, grad = q->grad;
+    const REAL kf = q->kf;
+    const REAL *restrict nl = q->nl, *restrict nv = q->nv, *restrict nh2 = q->nh2, *restrict w = q->w,
+               *restrict amp = q->amp, *restrict y = q->y, *restrict wgt = q->wgt, *restrict gout = q->gout;
+    const int64_t p0 = b * BLK;
+    const int64_t m = (P - p0) < BLK ? (P - p0) : BLK;
+    const REAL *restrict KD0, *restrict KD1, *restrict KD2, *restrict KS0, *restrict KS1, *restrict KS2, *restrict R;
+    REAL tkd0[BLK], tkd1[BLK], tkd2[BLK], tks0[BLK], tks1[BLK], tks2[BLK], tr[BLK];
+    if (q->tidx) {  /* gather the block's maps from the texels */
+        const REAL *kd = q->kd + i * 3 * T, *ks = q->ks + i * 3 * T, *r = q->r + i * T;
+        for (int64_t j = 0; j < m; j++) {
+            const int32_t *ti = q->tidx + (p0 + j) * 4;
+            const REAL *tw = q->tw + (p0 + j) * 4;
+            REAL a0 = 0, a1 = 0, a2 = 0, s0 = 0, s1 = 0, s2 = 0, rr = 0;
+            for (int k = 0; k < 4; k++) {
+                const int64_t t = ti[k];
+                const REAL wk = tw[k];
+                a0 += wk * kd[t]; a1 += wk * kd[T + t]; a2 += wk * kd[2 * T + t];
+                s0 += wk * ks[t]; s1 += wk * ks[T + t]; s2 += wk * ks[2 * T + t];
+                rr += wk * r[t];
+            }
+            tkd0[j] = a0; tkd1[j] = a1; tkd2[j] = a2; tks0[j] = s0; tks1[j] = s1; tks2[j] = s2; tr[j] = rr;
+        }
+        KD0 = tkd0; KD1 = tkd1; KD2 = tkd2; KS0 = tks0; KS1 = tks1; KS2 = tks2; R = tr;
+    } else {
+        KD0 = q->kd + i * 3 * P + p0; KD1 = KD0 + P; KD2 = KD0 + 2 * P;
+        KS0 = q->ks + i * 3 * P + p0; KS1 = KS0 + P; KS2 = KS0 + 2 * P;
+        R = q->r + i * P + p0;
+    }
+    REAL akd0[BLK] = {0}, akd1[BLK] = {0}, akd2[BLK] = {0}, aks0[BLK] = {0}, aks1[BLK] = {0},
+         aks2[BLK] = {0}, ar[BLK] = {0}, e[BLK] = {0};
+    REAL o0[BLK], o1[BLK], o2[BLK], g0[BLK], g1[BLK], g2[BLK];
+    REAL sS[LMAX][BLK], sD[LMAX][BLK];  /* S and S * dlnS/dr per light, kept for the gradient pass */
+    for (int64_t v = 0; v < V; v++) {
+        const REAL *NV = nv + v * P + p0;
+        {  /* radiance of this view, and the specular terms the gradient pass reuses */
+            for (int64_t j = 0; j < BLK; j++) o0[j] = o1[j] = o2[j] = 0;
+            for (int64_t l = 0; l < L; l++) {
+                const int64_t vl = v * L + l;
+                const REAL *NL = nl + vl * P + p0, *NH2 = nh2 + vl * P + p0, *W = w + vl * P + p0;
+                const REAL *A0 = amp + vl * 3 * P + p0, *A1 = A0 + P, *A2 = A0 + 2 * P;
+                if (grad) { SPEC_LOOP(1) } else { SPEC_LOOP(0) }
+            }
+        }
+        if (mode == MODE_IMAGE_FWD) {
+            REAL *OUT = q->out + ((i * V + v) * 3) * P + p0;
+            for (int64_t j = 0; j < m; j++) { OUT[j] = o0[j]; OUT[P + j] = o1[j]; OUT[2 * P + j] = o2[j]; }
+            continue;
+        }
+        if (mode == MODE_LOSS) {
+            const REAL *Y0 = y + v * 3 * P + p0, *Y1 = Y0 + P, *Y2 = Y0 + 2 * P, *WG = wgt + v * P + p0;
+            if (l2) {
 #pragma omp simd
-                        for (int64_t j = 0; j < m; j++) {
-                            const REAL d0 = o0[j] - Y0[j], d1 = o1[j] - Y1[j], d2 = o2[j] - Y2[j];
-                            e[j] += WG[j] * (d0 * d0 + d1 * d1 + d2 * d2);
-                            g0[j] = 2 * WG[j] * d0; g1[j] = 2 * WG[j] * d1; g2[j] = 2 * WG[j] * d2;
-                        }
-                    } else {
-#pragma omp simd
-                        for (int64_t j = 0; j < m; j++) {
-                            const REAL d0 = o0[j] - Y0[j], d1 = o1[j] - Y1[j], d2 = o2[j] - Y2[j];
-                            e[j] += WG[j] * (ABS(d0) + ABS(d1) + ABS(d2));
-                            g0[j] = WG[j] * SIGN(d0); g1[j] = WG[j] * SIGN(d1); g2[j] = WG[j] * SIGN(d2);
-                        }
-                    }
-                } else {
-                    const REAL *GO = gout + ((i * V + v) * 3) * P + p0;
-                    for (int64_t j = 0; j < m; j++) { g0[j] = GO[j]; g1[j] = GO[P + j]; g2[j] = GO[2 * P + j]; }
+                for (int64_t j = 0; j < m; j++) {
+                    const REAL d0 = o0[j] - Y0[j], d1 = o1[j] - Y1[j], d2 = o2[j] - Y2[j];
+                    e[j] += WG[j] * (d0 * d0 + d1 * d1 + d2 * d2);
+                    g0[j] = 2 * WG[j] * d0; g1[j] = 2 * WG[j] * d1; g2[j] = 2 * WG[j] * d2;
                 }
-                if (!grad) continue;
-                for (int64_t l = 0; l < L; l++) {
-                    const int64_t vl = v * L + l;
-                    const REAL *NL = nl + vl * P + p0, *NH2 = nh2 + vl * P + p0, *W = w + vl * P + p0;
-                    const REAL *A0 = amp + vl * 3 * P + p0, *A1 = A0 + P, *A2 = A0 + 2 * P;
+            } else {
 #pragma omp simd
-                    for (int64_t j = 0; j < m; j++) {
-                        const REAL s = sS[l][j], sd = sD[l][j], wj = W[j];
-                        REAL gF = 0;
+                for (int64_t j = 0; j < m; j++) {
+                    const REAL d0 = o0[j] - Y0[j], d1 = o1[j] - Y1[j], d2 = o2[j] - Y2[j];
+                    e[j] += WG[j] * (ABS(d0) + ABS(d1) + ABS(d2));
+                    g0[j] = WG[j] * SIGN(d0); g1[j] = WG[j] * SIGN(d1); g2[j] = WG[j] * SIGN(d2);
+                }
+            }
+        } else {
+            const REAL *GO = gout + ((i * V + v) * 3) * P + p0;
+            for (int64_t j = 0; j < m; j++) { g0[j] = GO[j]; g1[j] = GO[P + j]; g2[j] = GO[2 * P + j]; }
+        }
+        if (!grad) continue;
+        for (int64_t l = 0; l < L; l++) {
+            const int64_t vl = v * L + l;
+            const REAL *NL = nl + vl * P + p0, *NH2 = nh2 + vl * P + p0, *W = w + vl * P + p0;
+            const REAL *A0 = amp + vl * 3 * P + p0, *A1 = A0 + P, *A2 = A0 + 2 * P;
+            (void)NL; (void)NH2;
+#pragma omp simd
+            for (int64_t j = 0; j < m; j++) {
+                const REAL s = sS[l][j], sd = sD[l][j], wj = W[j];
+                REAL gF = 0;
 #define GRAD(c) { const REAL gA = g##c[j] * A##c[j]; \
                   akd##c[j] += gA * (1 - kf * KS##c[j]) * INV_PI; \
                   aks##c[j] += gA * (s * (1 - wj) - kf * KD##c[j] * INV_PI); \
                   gF += gA * (KS##c[j] * (1 - wj) + wj); }
-                        GRAD(0) GRAD(1) GRAD(2)
+                GRAD(0) GRAD(1) GRAD(2)
 #undef GRAD
-                        ar[j] += gF * sd;
-                    }
-                }
-            }
-            if (mode == MODE_LOSS) {
-                double sum = 0;
-                for (int64_t j = 0; j < m; j++) sum += e[j];
-                epart[i * nb + b] = sum;
-            }
-            if (grad) {
-                REAL *GKD = gkd + i * 3 * P + p0, *GKS = gks + i * 3 * P + p0, *GR = gr + i * P + p0;
-                for (int64_t j = 0; j < m; j++) {
-                    GKD[j] = akd0[j]; GKD[P + j] = akd1[j]; GKD[2 * P + j] = akd2[j];
-                    GKS[j] = aks0[j]; GKS[P + j] = aks1[j]; GKS[2 * P + j] = aks2[j];
-                    GR[j] = ar[j];
-                }
+                ar[j] += gF * sd;
             }
         }
+    }
+    if (mode == MODE_LOSS) {
+        double sum = 0;
+        for (int64_t j = 0; j < m; j++) sum += e[j];
+        q->epart[i * q->nb + b] = sum;
+    }
+    if (!grad) return;
+    if (q->tidx) {  /* scatter to the texels (this particle's maps belong to this thread) */
+        REAL *GKD = q->gkd + i * 3 * T, *GKS = q->gks + i * 3 * T, *GR = q->gr + i * T;
+        for (int64_t j = 0; j < m; j++) {
+            const int32_t *ti = q->tidx + (p0 + j) * 4;
+            const REAL *tw = q->tw + (p0 + j) * 4;
+            for (int k = 0; k < 4; k++) {
+                const int64_t t = ti[k];
+                const REAL wk = tw[k];
+                GKD[t] += wk * akd0[j]; GKD[T + t] += wk * akd1[j]; GKD[2 * T + t] += wk * akd2[j];
+                GKS[t] += wk * aks0[j]; GKS[T + t] += wk * aks1[j]; GKS[2 * T + t] += wk * aks2[j];
+                GR[t] += wk * ar[j];
+            }
+        }
+    } else {
+        REAL *GKD = q->gkd + i * 3 * P + p0, *GKS = q->gks + i * 3 * P + p0, *GR = q->gr + i * P + p0;
+        for (int64_t j = 0; j < m; j++) {
+            GKD[j] = akd0[j]; GKD[P + j] = akd1[j]; GKD[2 * P + j] = akd2[j];
+            GKS[j] = aks0[j]; GKS[P + j] = aks1[j]; GKS[2 * P + j] = aks2[j];
+            GR[j] = ar[j];
+        }
+    }
+}
+
+void bb_shade(int64_t mode, int64_t n, int64_t V, int64_t L, int64_t P, int64_t ks_factor, int64_t l2,
+              int64_t need_grad, int64_t nthreads, int64_t T, const int32_t *tidx, const REAL *tw,
+              const REAL *kd, const REAL *r, const REAL *ks,
+              const REAL *nl, const REAL *nv, const REAL *nh2,
+              const REAL *w, const REAL *amp,
+              const REAL *y, const REAL *wgt, const REAL *gout,
+              REAL *out, double *epart, REAL *gkd, REAL *gr, REAL *gks)
+{
+    struct args q = {mode, n, V, L, P, T, l2, (mode == MODE_IMAGE_BWD) || (mode == MODE_LOSS && need_grad),
+                     (P + BLK - 1) / BLK, ks_factor ? (REAL)1 : (REAL)0,  /* q = (1 - kf ks) / pi */
+                     tidx, tw, kd, r, ks, nl, nv, nh2, w, amp, y, wgt, gout, out, epart, gkd, gr, gks};
+    const int64_t nb = q.nb;
+    if (tidx) {
+#pragma omp parallel for schedule(static) num_threads(nthreads)
+        for (int64_t i = 0; i < n; i++)
+            for (int64_t b = 0; b < nb; b++) block(&q, i, b);
+    } else {
+        /* blocks outside, particles inside: a block's geometry (all views) stays in cache across particles */
+#pragma omp parallel for schedule(static) num_threads(nthreads)
+        for (int64_t b = 0; b < nb; b++)
+            for (int64_t i = 0; i < n; i++) block(&q, i, b);
     }
 }

@@ -38,7 +38,7 @@ import torch
 from torch import Tensor
 
 from ..errors import InputError
-from . import native
+from . import native, texels
 from .brdf import INV_PI, fresnel_weight, microfacet
 
 
@@ -134,8 +134,35 @@ def _route(kd, r, ks, nl, nv, nh, vh, scale, torch_compile: bool = True) -> str:
     return "compiled" if full and torch_compile else "eager"
 
 
-def compiled_kernel(kd, r, ks, nl, nv, nh, vh, scale, ks_factor: bool = True, torch_compile: bool = True) -> Tensor:
-    """Fused kernel with analytic gradients w.r.t. ``kd, r, ks`` (falls back to eager when it cannot apply)."""
+def _texel_route(kd, r, ks, nl, nv, nh, vh, scale, taps):
+    """With ``taps`` (texel maps read bilinearly at each pixel): ``"native"`` when the C kernel can gather itself,
+    else the maps looked up here (``"lookup"``) for the other implementations."""
+    ok = not any(t.requires_grad for t in (nl, nv, nh, vh, scale)) and nl.shape[0] == 1 and \
+        nl.shape[2] <= native.MAX_LIGHTS and native.available(kd)
+    return "native" if ok else "lookup"
+
+
+def _looked_up(taps, *maps):
+    """Texel maps ``[n, 1, C, Ht, Wt]`` read at the pixels of ``taps``: ``[n, 1, C, 1, K]`` (1 x 1 maps as they are)."""
+    out = []
+    for t in maps:
+        if tuple(t.shape[-2:]) == (1, 1):
+            out.append(t)
+        else:
+            out.append(texels.gather(t[:, 0], taps.S, taps.St)[:, None, :, None, :])
+    return out
+
+
+def compiled_kernel(kd, r, ks, nl, nv, nh, vh, scale, ks_factor: bool = True, torch_compile: bool = True,
+                    taps=None) -> Tensor:
+    """Fused kernel with analytic gradients w.r.t. ``kd, r, ks`` (falls back to eager when it cannot apply).
+
+    ``taps`` (:class:`~bayes_brdf.render.texels.Taps`): the maps are texel maps read bilinearly at each pixel
+    (a mesh's pixels); the native kernel then gathers and scatters the texels itself."""
+    if taps is not None:
+        if _texel_route(kd, r, ks, nl, nv, nh, vh, scale, taps) == "native":
+            return native.NativeShade.apply(kd, r, ks, nl, nv, nh, vh, scale, ks_factor, (taps.idx, taps.w, taps.grid))
+        kd, r, ks = _looked_up(taps, kd, r, ks)
     route = _route(kd, r, ks, nl, nv, nh, vh, scale, torch_compile)
     if route == "native":
         return native.NativeShade.apply(kd, r, ks, nl, nv, nh, vh, scale, ks_factor)
@@ -279,8 +306,15 @@ class _FusedLoss(torch.autograd.Function):
 
 
 def compiled_loss(kd, r, ks, nl, nv, nh, vh, scale, y, wgt, ks_factor: bool = True, l1: bool = True,
-                  torch_compile: bool = True) -> Tensor:
-    """Fused shading + loss with analytic gradients w.r.t. ``kd, r, ks`` (eager fallback as :func:`compiled_kernel`)."""
+                  torch_compile: bool = True, taps=None) -> Tensor:
+    """Fused shading + loss with analytic gradients w.r.t. ``kd, r, ks`` (eager fallback as :func:`compiled_kernel`;
+    ``taps`` as there)."""
+    if taps is not None:
+        if not (y.requires_grad or wgt.requires_grad) and \
+                _texel_route(kd, r, ks, nl, nv, nh, vh, scale, taps) == "native":
+            return native.NativeLoss.apply(kd, r, ks, nl, nv, nh, vh, scale, y, wgt, ks_factor, l1,
+                                           (taps.idx, taps.w, taps.grid))
+        kd, r, ks = _looked_up(taps, kd, r, ks)
     route = "eager" if y.requires_grad or wgt.requires_grad else _route(kd, r, ks, nl, nv, nh, vh, scale,
                                                                            torch_compile)
     if route == "native":

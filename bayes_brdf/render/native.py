@@ -86,7 +86,7 @@ def _lib(dtype: torch.dtype):
                               "using torch.compile kernels")
                 return None
             fn.restype = None
-            fn.argtypes = [ctypes.c_int64] * 9 + [ctypes.c_void_p] * 16
+            fn.argtypes = [ctypes.c_int64] * 10 + [ctypes.c_void_p] * 18
             _LIBS[real] = fn
     return _LIBS[real]
 
@@ -100,20 +100,22 @@ def _ptr(t: Tensor | None):
     return None if t is None else ctypes.c_void_p(t.data_ptr())
 
 
-def _call(mode, maps, geo, ks_factor, *, y=None, wgt=None, gout=None, l2=False, need_grad=False):
-    """Run the kernel. ``maps = (kd [n,3,P], r [n,P], ks [n,3,P])``, ``geo = (nl, nv, nh2, w, A)``."""
+def _call(mode, maps, geo, ks_factor, *, y=None, wgt=None, gout=None, l2=False, need_grad=False, taps=None):
+    """Run the kernel. ``maps = (kd [n,3,P], r [n,P], ks [n,3,P])``, ``geo = (nl, nv, nh2, w, A)``; with
+    ``taps = (idx int32 [P, 4], w [P, 4])`` the maps are texel maps ``[n, 3, T]``, ``[n, T]`` read bilinearly."""
     kd, r, ks = maps
     nl, nv, nh2, w, amp = geo
-    n, P = r.shape
-    V, L = nl.shape[:2]
+    n, T = r.shape
+    V, L, P = nl.shape
     dt = kd.dtype
     nb = (P + 63) // 64
     out = torch.empty(n, V, 3, P, dtype=dt) if mode == MODE_IMAGE_FWD else None
     epart = torch.empty(n, nb, dtype=torch.float64) if mode == MODE_LOSS else None
-    grads = [torch.empty_like(kd), torch.empty_like(r), torch.empty_like(ks)] \
-        if mode == MODE_IMAGE_BWD or need_grad else [None, None, None]
-    _lib(dt)(mode, n, V, L, P, int(ks_factor), int(l2), int(need_grad), torch.get_num_threads(),
-             *map(_ptr, (kd, r, ks, nl, nv, nh2, w, amp, y, wgt, gout, out, epart, *grads)))
+    new = torch.zeros_like if taps is not None else torch.empty_like     # taps: gradients scatter-add
+    grads = [new(kd), new(r), new(ks)] if mode == MODE_IMAGE_BWD or need_grad else [None, None, None]
+    tidx, tw = taps if taps is not None else (None, None)
+    _lib(dt)(mode, n, V, L, P, int(ks_factor), int(l2), int(need_grad), torch.get_num_threads(), T,
+             *map(_ptr, (tidx, tw, kd, r, ks, nl, nv, nh2, w, amp, y, wgt, gout, out, epart, *grads)))
     return out, epart, grads
 
 
@@ -142,48 +144,56 @@ def _geometry(nl, nv, nh, vh, scale):
     return geo
 
 
-def prepare(kd, r, ks, nl, nv, nh, vh, scale, hw):
-    """Kernel inputs from the shading tensors (see :mod:`.fused` for their shapes)."""
+def prepare(kd, r, ks, nl, nv, nh, vh, scale, hw, texels=None):
+    """Kernel inputs from the shading tensors (see :mod:`.fused` for their shapes); with ``texels = (Ht, Wt)``
+    the maps are texel maps of that size (or ``1 x 1``), read through taps."""
     n = max(kd.shape[0], r.shape[0], ks.shape[0])
-    h, w_ = hw
+    h, w_ = texels or hw
     full = lambda t, c: t.expand(t.shape[0], 1, c, h, w_)  # noqa: E731  (1x1 constants -> full maps)
     maps = (_flat(full(kd, 3), n, 3), _flat(full(r, 1), n, 1)[:, 0], _flat(full(ks, 3), n, 3))
     return n, maps, _geometry(nl, nv, nh, vh, scale)
+
+
+def texel_maps(t: Tensor) -> Tensor:
+    """A texel map ``[n, C, Ht, Wt]`` (or ``[C, Ht, Wt]``) in the kernels' map layout ``[n, 1, C, Ht, Wt]``."""
+    return (t[None] if t.dim() == 3 else t)[:, None]
 
 
 class NativeShade(torch.autograd.Function):
     """Images ``[n, V, 3, H, W]`` with analytic gradients w.r.t. ``kd, r, ks``."""
 
     @staticmethod
-    def forward(ctx, kd, r, ks, nl, nv, nh, vh, scale, ks_factor):
+    def forward(ctx, kd, r, ks, nl, nv, nh, vh, scale, ks_factor, taps=None):
         hw = nl.shape[-2:]
-        n, maps, geo = prepare(kd, r, ks, nl, nv, nh, vh, scale, hw)
-        out, _, _ = _call(MODE_IMAGE_FWD, maps, geo, ks_factor)
+        n, maps, geo = prepare(kd, r, ks, nl, nv, nh, vh, scale, hw, None if taps is None else taps[2])
+        tp = None if taps is None else taps[:2]
+        out, _, _ = _call(MODE_IMAGE_FWD, maps, geo, ks_factor, taps=tp)
         ctx.save_for_backward(*maps, *geo)
-        ctx.meta = (ks_factor, kd.shape, r.shape, ks.shape)
+        ctx.meta = (ks_factor, tp, kd.shape, r.shape, ks.shape)
         return out.reshape(n, geo[0].shape[0], 3, *hw)
 
     @staticmethod
     def backward(ctx, gout):
-        ks_factor, *shapes = ctx.meta
+        ks_factor, tp, *shapes = ctx.meta
         saved = ctx.saved_tensors
         n = saved[1].shape[0]
         g = gout.reshape(n, gout.shape[1], 3, -1).contiguous()
-        _, _, grads = _call(MODE_IMAGE_BWD, saved[:3], saved[3:], ks_factor, gout=g)
-        return (*_unflat(grads, shapes), None, None, None, None, None, None)
+        _, _, grads = _call(MODE_IMAGE_BWD, saved[:3], saved[3:], ks_factor, gout=g, taps=tp)
+        return (*_unflat(grads, shapes), None, None, None, None, None, None, None)
 
 
 class NativeLoss(torch.autograd.Function):
     """Per-particle loss ``[n]``; the gradient is computed in the same pass as the loss."""
 
     @staticmethod
-    def forward(ctx, kd, r, ks, nl, nv, nh, vh, scale, y, wgt, ks_factor, l1):
+    def forward(ctx, kd, r, ks, nl, nv, nh, vh, scale, y, wgt, ks_factor, l1, taps=None):
         hw = nl.shape[-2:]
-        n, maps, geo = prepare(kd, r, ks, nl, nv, nh, vh, scale, hw)
+        n, maps, geo = prepare(kd, r, ks, nl, nv, nh, vh, scale, hw, None if taps is None else taps[2])
         need = any(ctx.needs_input_grad[:3])
         yy = y.reshape(y.shape[0], 3, -1).contiguous()
         ww = wgt.expand(y.shape[0], 1, *hw).reshape(y.shape[0], -1).contiguous()
-        _, epart, grads = _call(MODE_LOSS, maps, geo, ks_factor, y=yy, wgt=ww, l2=not l1, need_grad=need)
+        _, epart, grads = _call(MODE_LOSS, maps, geo, ks_factor, y=yy, wgt=ww, l2=not l1, need_grad=need,
+                                taps=None if taps is None else taps[:2])
         if need:
             ctx.save_for_backward(*grads)
         ctx.shapes = (kd.shape, r.shape, ks.shape)
@@ -196,7 +206,7 @@ class NativeLoss(torch.autograd.Function):
             ge = ge.to(gkd.dtype)
             gkd, gr, gks = gkd * ge[:, None, None], gr * ge[:, None], gks * ge[:, None, None]
         grads = (gkd, gr, gks)
-        return (*_unflat(grads, ctx.shapes), *(None,) * 9)
+        return (*_unflat(grads, ctx.shapes), *(None,) * 10)
 
 
 def _unflat(grads, shapes):

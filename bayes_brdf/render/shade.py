@@ -21,7 +21,7 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from ..errors import InputError
-from . import fused, texels
+from . import fused, native, texels
 from .gbuffer import GBUFFERS, GBuffer
 from .maps import SVBRDF
 from .surface import PlanarSample
@@ -45,16 +45,30 @@ def lookup(tex: Tensor, g: GBuffer) -> Tensor:
         V, (h, w) = g.num_views, g.resolution
         return t.flatten(-2).index_select(-1, g.texel.reshape(-1)).reshape(n, c, V, h, w).transpose(1, 2)
     if g.gathered:                        # gathered pixels (a mesh's valid pixels): bilinear taps, sparse product
-        memo = g.__dict__.setdefault("_taps", {})
-        key = (ht, wt, t.dtype, str(t.device))
-        if key not in memo:
-            memo[key] = texels.tap_matrix(g.uv.reshape(-1, 2), (ht, wt), g.align_corners, dtype=t.dtype,
-                                          device=t.device)
-        return texels.gather(t, *memo[key]).reshape(n, c, *g.resolution)[:, None]
+        tp = taps_of(g, (ht, wt), t.dtype, t.device)
+        return texels.gather(t, tp.S, tp.St).reshape(n, c, *g.resolution)[:, None]
     V, (h, w) = g.num_views, g.resolution
     grid = g.uv.to(t.dtype).reshape(1, V * h, w, 2).expand(n, -1, -1, -1)
     s = F.grid_sample(t, grid, mode="bilinear", padding_mode="border", align_corners=g.align_corners)
     return s.reshape(n, c, V, h, w).transpose(1, 2)
+
+
+def taps_of(g: GBuffer, grid, dtype, device) -> "texels.Taps":
+    """The bilinear taps of the pixels of a gathered G-buffer in an ``(Ht, Wt)`` map, built once and kept on ``g``."""
+    memo = g.__dict__.setdefault("_taps", {})
+    key = (tuple(grid), dtype, str(device))
+    if key not in memo:
+        memo[key] = texels.taps(g.uv.reshape(-1, 2), tuple(grid), g.align_corners, dtype=dtype, device=device)
+    return memo[key]
+
+
+def _texel_grid(maps: SVBRDF, g: GBuffer):
+    """The one ``(Ht, Wt)`` of the material maps that the fused kernel can read through taps (pixels of a
+    gathered G-buffer that are not texels), or ``None``."""
+    if not g.gathered or g.texel is not None:
+        return None
+    sizes = {tuple(t.shape[-2:]) for t in (maps.albedo, maps.roughness, maps.specular)} - {(1, 1)}
+    return sizes.pop() if len(sizes) == 1 else None
 
 
 def _normalize(x: Tensor, dim: int) -> Tensor:
@@ -80,11 +94,13 @@ def geometry_terms(normal: Tensor, g: GBuffer, eps: float = 1e-8):
     return dot(nw, l), dot(nw, v), dot(nw, hv), dot(v, hv)
 
 
-def _chunks(maps: SVBRDF, g: GBuffer, eps: float, chunk_views: int | None):
+def _chunks(maps: SVBRDF, g: GBuffer, eps: float, chunk_views: int | None, texel_space: bool = False):
     """Shared set-up of :func:`shade` and :func:`shade_loss`.
 
     Returns ``(n, g, iterator)``; the iterator yields, per chunk of views
-    ``start:stop``, the kernel inputs ``(kd, r, ks, n.l, n.v, n.h, v.h, scale)``.
+    ``start:stop``, the kernel inputs ``(kd, r, ks, n.l, n.v, n.h, v.h, scale)`` and the taps: ``None``, or
+    with ``texel_space`` on a gathered G-buffer, the :class:`~bayes_brdf.render.texels.Taps` through which the
+    kernel reads the maps, which are then passed as texel maps (not looked up here).
     With normals held fixed (no particle dimension, no gradient) the cosines
     are computed once and kept on the G-buffer until the normal map changes.
     """
@@ -110,15 +126,21 @@ def _chunks(maps: SVBRDF, g: GBuffer, eps: float, chunk_views: int | None):
             hit = memo[(s, e, eps)] = (nrm, nrm._version, geometry_terms(lookup(nrm, gc), gc, eps))
         return hit[2]
 
+    grid = _texel_grid(maps, g) if texel_space else None
+    tp = taps_of(g, grid, dt, dev) if grid is not None else None
+
     def it():
         for s in range(0, V, chunk_views):
             e = min(V, s + chunk_views)
             gc = g.views_slice(s, e) if V > chunk_views else g
-            kd, rough, ks = (lookup(t, gc) for t in (maps.albedo, maps.roughness, maps.specular))
+            if tp is not None:
+                kd, rough, ks = (native.texel_maps(t) for t in (maps.albedo, maps.roughness, maps.specular))
+            else:
+                kd, rough, ks = (lookup(t, gc) for t in (maps.albedo, maps.roughness, maps.specular))
             sc = memo.get((s, e, "scale"))
             if sc is None or sc[0] is not g.light_scale:    # one view object, so the native geometry cache hits
                 sc = memo[(s, e, "scale")] = (g.light_scale, gc.light_scale[None])
-            yield s, e, (kd, rough, ks, *cosines(s, e, gc), sc[1])
+            yield s, e, (kd, rough, ks, *cosines(s, e, gc), sc[1]), tp
 
     return n, g, it()
 
@@ -148,11 +170,12 @@ def shade_chunks(maps: SVBRDF, g: GBuffer, *, ks_factor: bool = True, eps: float
     For consumers that reduce each chunk (image-space std, view scoring) so the full
     ``[n, V, ...]`` stack never exists; the geometry cached on ``g`` is reused across calls.
     """
-    n, g, chunks = _chunks(maps, g, eps, chunk_views)
+    n, g, chunks = _chunks(maps, g, eps, chunk_views, texel_space=backend != "eager")
     V, (h, w) = g.num_views, g.resolution
     kernel = fused.get_kernel(backend, n * V * h * w)
-    for s, e, args in chunks:
-        yield s, e, kernel(*args, ks_factor).expand(n, e - s, 3, h, w)
+    for s, e, args, tp in chunks:
+        out = kernel(*args, ks_factor) if tp is None else kernel(*args, ks_factor, taps=tp)
+        yield s, e, out.expand(n, e - s, 3, h, w)
 
 
 class Renderer:
@@ -243,13 +266,14 @@ def shade_loss(maps: SVBRDF, g: GBuffer, target: Tensor, weight: Tensor | float 
             y = target[off].to(loss.dtype)
             loss = loss + (wt[off].to(loss.dtype)[:, None] * (y.abs() if kind == "l1" else y * y)).sum()
         return loss
-    n, g, chunks = _chunks(maps, g, eps, chunk_views)
+    n, g, chunks = _chunks(maps, g, eps, chunk_views, texel_space=backend != "eager")
     dev, dt = maps.albedo.device, maps.albedo.dtype
     y = target.to(device=dev, dtype=dt).permute(0, 3, 1, 2)
     wt = torch.as_tensor(weight, device=dev, dtype=dt)
     wt = (wt.expand(V, h, w) if wt.dim() < 3 else wt)[:, None]
     kernel = fused.get_loss_kernel(backend, n * V * h * w)
     total = 0.0
-    for s, e, args in chunks:
-        total = total + kernel(*args, y[s:e].contiguous(), wt[s:e].contiguous(), ks_factor, kind == "l1")
+    for s, e, args, tp in chunks:
+        extra = {} if tp is None else {"taps": tp}
+        total = total + kernel(*args, y[s:e].contiguous(), wt[s:e].contiguous(), ks_factor, kind == "l1", **extra)
     return total.expand(n) if total.dim() == 1 else total

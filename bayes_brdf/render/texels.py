@@ -11,9 +11,35 @@ reads get no gradient and keep their prior.
 from __future__ import annotations
 
 import warnings
+from typing import NamedTuple
 
 import torch
 from torch import Tensor
+
+
+class Taps(NamedTuple):
+    """The bilinear lookup of ``K`` pixels in an ``(Ht, Wt)`` map: flat texel indices ``idx`` (int32 ``[K, 4]``),
+    weights ``w [K, 4]``, and the same as sparse matrices ``S [K, T]`` and ``St [T, K]``."""
+
+    idx: Tensor
+    w: Tensor
+    S: Tensor
+    St: Tensor
+    grid: tuple
+
+
+def taps(uv: Tensor, resolution, align_corners: bool, dtype=torch.float32, device=None) -> Taps:
+    """The :class:`Taps` of pixels at ``uv [K, 2]`` in a map of ``resolution (Ht, Wt)``.
+
+    Example:
+        >>> t = taps(torch.zeros(1, 2), (2, 2), False)
+        >>> t.idx.tolist(), t.w.tolist(), t.grid
+        ([[0, 1, 2, 3]], [[0.25, 0.25, 0.25, 0.25]], (2, 2))
+    """
+    idx, w = bilinear_taps(uv, resolution, align_corners)
+    S, St = tap_matrix(uv, resolution, align_corners, dtype=dtype, device=device)
+    return Taps(idx.to(torch.int32).contiguous().to(device), w.to(dtype=dtype, device=device).contiguous(), S, St,
+                tuple(resolution))
 
 
 def bilinear_taps(uv: Tensor, resolution, align_corners: bool) -> tuple[Tensor, Tensor]:
