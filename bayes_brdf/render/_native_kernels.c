@@ -10,7 +10,9 @@
  * Layout (contiguous, channel-first, P = H * W pixels):
  *   kd, ks [n, 3, P]; r [n, P]    -- pixels are texels (rectified views), or, with taps (tidx != NULL):
  *   kd, ks [n, 3, T]; r [n, T]    -- texel maps read bilinearly: pixel p is sum_k tw[p, k] map[tidx[p, k]]
- *                                    (tidx int32 [P, 4], tw [P, 4]); gradients scatter back the same way
+ *                                    (tidx int32 [P, 4], tw [P, 4]); gradients scatter back the same way;
+ *                                    tex_flags bits 0-2: kd, r, ks is one constant texel ([n, 3, 1]),
+ *                                    bits 3-5: kd, r, ks needs no gradient (not scattered)
  *   nl, nh2 = (n.h)^2, w [V, L, P]; nv [V, P]; A = scale * (n.l) [V, L, 3, P]
  *   y, gout-per-view [.., 3, P]; wgt [V, P]
  * Parallel over blocks of pixels, particles inside (the block's geometry stays in
@@ -60,7 +62,7 @@ static const REAL INV_PI = (REAL)0.318309886183790671538;
     }
 
 struct args {
-    int64_t mode, n, V, L, P, T, l2, grad, nb;
+    int64_t mode, n, V, L, P, T, l2, grad, nb, flags;
     REAL kf;
     const int32_t *tidx; const REAL *tw;
     const REAL *kd, *r, *ks, *nl, *nv, *nh2, *w, *amp, *y, *wgt, *gout;
@@ -77,8 +79,9 @@ static inline void block(const struct args *restrict q, const int64_t i, const i
     const int64_t m = (P - p0) < BLK ? (P - p0) : BLK;
     const REAL *restrict KD0, *restrict KD1, *restrict KD2, *restrict KS0, *restrict KS1, *restrict KS2, *restrict R;
     REAL tkd0[BLK], tkd1[BLK], tkd2[BLK], tks0[BLK], tks1[BLK], tks2[BLK], tr[BLK];
-    if (q->tidx) {  /* gather the block's maps from the texels */
-        const REAL *kd = q->kd + i * 3 * T, *ks = q->ks + i * 3 * T, *r = q->r + i * T;
+    if (q->tidx) {  /* gather the block's maps from the texels (a constant map: its one value) */
+        const int64_t fl = q->flags, Tkd = fl & 1 ? 1 : T, Tr = fl & 2 ? 1 : T, Tks = fl & 4 ? 1 : T;
+        const REAL *kd = q->kd + i * 3 * Tkd, *ks = q->ks + i * 3 * Tks, *r = q->r + i * Tr;
         for (int64_t j = 0; j < m; j++) {
             const int32_t *ti = q->tidx + (p0 + j) * 4;
             const REAL *tw = q->tw + (p0 + j) * 4;
@@ -86,10 +89,13 @@ static inline void block(const struct args *restrict q, const int64_t i, const i
             for (int k = 0; k < 4; k++) {
                 const int64_t t = ti[k];
                 const REAL wk = tw[k];
-                a0 += wk * kd[t]; a1 += wk * kd[T + t]; a2 += wk * kd[2 * T + t];
-                s0 += wk * ks[t]; s1 += wk * ks[T + t]; s2 += wk * ks[2 * T + t];
-                rr += wk * r[t];
+                if (!(fl & 1)) { a0 += wk * kd[t]; a1 += wk * kd[T + t]; a2 += wk * kd[2 * T + t]; }
+                if (!(fl & 4)) { s0 += wk * ks[t]; s1 += wk * ks[T + t]; s2 += wk * ks[2 * T + t]; }
+                if (!(fl & 2)) rr += wk * r[t];
             }
+            if (fl & 1) { a0 = kd[0]; a1 = kd[1]; a2 = kd[2]; }
+            if (fl & 4) { s0 = ks[0]; s1 = ks[1]; s2 = ks[2]; }
+            if (fl & 2) rr = r[0];
             tkd0[j] = a0; tkd1[j] = a1; tkd2[j] = a2; tks0[j] = s0; tks1[j] = s1; tks2[j] = s2; tr[j] = rr;
         }
         KD0 = tkd0; KD1 = tkd1; KD2 = tkd2; KS0 = tks0; KS1 = tks1; KS2 = tks2; R = tr;
@@ -166,18 +172,36 @@ static inline void block(const struct args *restrict q, const int64_t i, const i
     }
     if (!grad) return;
     if (q->tidx) {  /* scatter to the texels (this particle's maps belong to this thread) */
-        REAL *GKD = q->gkd + i * 3 * T, *GKS = q->gks + i * 3 * T, *GR = q->gr + i * T;
+        const int64_t fl = q->flags, Tkd = fl & 1 ? 1 : T, Tr = fl & 2 ? 1 : T, Tks = fl & 4 ? 1 : T;
+        REAL *GKD = q->gkd + i * 3 * Tkd, *GKS = q->gks + i * 3 * Tks, *GR = q->gr + i * Tr;
+        REAL c0 = 0, c1 = 0, c2 = 0, c3 = 0, c4 = 0, c5 = 0, c6 = 0;   /* sums for constant maps */
         for (int64_t j = 0; j < m; j++) {
             const int32_t *ti = q->tidx + (p0 + j) * 4;
             const REAL *tw = q->tw + (p0 + j) * 4;
-            for (int k = 0; k < 4; k++) {
-                const int64_t t = ti[k];
-                const REAL wk = tw[k];
-                GKD[t] += wk * akd0[j]; GKD[T + t] += wk * akd1[j]; GKD[2 * T + t] += wk * akd2[j];
-                GKS[t] += wk * aks0[j]; GKS[T + t] += wk * aks1[j]; GKS[2 * T + t] += wk * aks2[j];
-                GR[t] += wk * ar[j];
+            if (!(fl & 8)) {
+                if (fl & 1) { c0 += akd0[j]; c1 += akd1[j]; c2 += akd2[j]; }
+                else for (int k = 0; k < 4; k++) {
+                    const int64_t t = ti[k];
+                    const REAL wk = tw[k];
+                    GKD[t] += wk * akd0[j]; GKD[T + t] += wk * akd1[j]; GKD[2 * T + t] += wk * akd2[j];
+                }
+            }
+            if (!(fl & 16)) {
+                if (fl & 2) c3 += ar[j];
+                else for (int k = 0; k < 4; k++) GR[ti[k]] += tw[k] * ar[j];
+            }
+            if (!(fl & 32)) {
+                if (fl & 4) { c4 += aks0[j]; c5 += aks1[j]; c6 += aks2[j]; }
+                else for (int k = 0; k < 4; k++) {
+                    const int64_t t = ti[k];
+                    const REAL wk = tw[k];
+                    GKS[t] += wk * aks0[j]; GKS[T + t] += wk * aks1[j]; GKS[2 * T + t] += wk * aks2[j];
+                }
             }
         }
+        if ((fl & 1) && !(fl & 8)) { GKD[0] += c0; GKD[1] += c1; GKD[2] += c2; }
+        if ((fl & 2) && !(fl & 16)) GR[0] += c3;
+        if ((fl & 4) && !(fl & 32)) { GKS[0] += c4; GKS[1] += c5; GKS[2] += c6; }
     } else {
         REAL *GKD = q->gkd + i * 3 * P + p0, *GKS = q->gks + i * 3 * P + p0, *GR = q->gr + i * P + p0;
         for (int64_t j = 0; j < m; j++) {
@@ -189,7 +213,7 @@ static inline void block(const struct args *restrict q, const int64_t i, const i
 }
 
 void bb_shade(int64_t mode, int64_t n, int64_t V, int64_t L, int64_t P, int64_t ks_factor, int64_t l2,
-              int64_t need_grad, int64_t nthreads, int64_t T, const int32_t *tidx, const REAL *tw,
+              int64_t need_grad, int64_t nthreads, int64_t T, int64_t tex_flags, const int32_t *tidx, const REAL *tw,
               const REAL *kd, const REAL *r, const REAL *ks,
               const REAL *nl, const REAL *nv, const REAL *nh2,
               const REAL *w, const REAL *amp,
@@ -197,7 +221,7 @@ void bb_shade(int64_t mode, int64_t n, int64_t V, int64_t L, int64_t P, int64_t 
               REAL *out, double *epart, REAL *gkd, REAL *gr, REAL *gks)
 {
     struct args q = {mode, n, V, L, P, T, l2, (mode == MODE_IMAGE_BWD) || (mode == MODE_LOSS && need_grad),
-                     (P + BLK - 1) / BLK, ks_factor ? (REAL)1 : (REAL)0,  /* q = (1 - kf ks) / pi */
+                     (P + BLK - 1) / BLK, tex_flags, ks_factor ? (REAL)1 : (REAL)0,  /* q = (1 - kf ks) / pi */
                      tidx, tw, kd, r, ks, nl, nv, nh2, w, amp, y, wgt, gout, out, epart, gkd, gr, gks};
     const int64_t nb = q.nb;
     if (tidx) {

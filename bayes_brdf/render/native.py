@@ -86,7 +86,7 @@ def _lib(dtype: torch.dtype):
                               "using torch.compile kernels")
                 return None
             fn.restype = None
-            fn.argtypes = [ctypes.c_int64] * 10 + [ctypes.c_void_p] * 18
+            fn.argtypes = [ctypes.c_int64] * 11 + [ctypes.c_void_p] * 18
             _LIBS[real] = fn
     return _LIBS[real]
 
@@ -100,12 +100,17 @@ def _ptr(t: Tensor | None):
     return None if t is None else ctypes.c_void_p(t.data_ptr())
 
 
-def _call(mode, maps, geo, ks_factor, *, y=None, wgt=None, gout=None, l2=False, need_grad=False, taps=None):
+def _call(mode, maps, geo, ks_factor, *, y=None, wgt=None, gout=None, l2=False, need_grad=False, taps=None,
+          no_grad=(False, False, False)):
     """Run the kernel. ``maps = (kd [n,3,P], r [n,P], ks [n,3,P])``, ``geo = (nl, nv, nh2, w, A)``; with
-    ``taps = (idx int32 [P, 4], w [P, 4])`` the maps are texel maps ``[n, 3, T]``, ``[n, T]`` read bilinearly."""
+    ``taps = (idx int32 [P, 4], w [P, 4])`` the maps are texel maps ``[n, 3, T]``, ``[n, T]`` (or one constant
+    texel, ``[n, 3, 1]``) read bilinearly, and ``no_grad`` names maps whose gradients are not wanted."""
     kd, r, ks = maps
     nl, nv, nh2, w, amp = geo
-    n, T = r.shape
+    n = r.shape[0]
+    T = max(m.shape[-1] for m in maps)
+    flags = sum(1 << k for k, m in enumerate(maps) if m.shape[-1] == 1 and T > 1) + \
+        sum(8 << k for k, f in enumerate(no_grad) if f)
     V, L, P = nl.shape
     dt = kd.dtype
     nb = (P + 63) // 64
@@ -114,7 +119,7 @@ def _call(mode, maps, geo, ks_factor, *, y=None, wgt=None, gout=None, l2=False, 
     new = torch.zeros_like if taps is not None else torch.empty_like     # taps: gradients scatter-add
     grads = [new(kd), new(r), new(ks)] if mode == MODE_IMAGE_BWD or need_grad else [None, None, None]
     tidx, tw = taps if taps is not None else (None, None)
-    _lib(dt)(mode, n, V, L, P, int(ks_factor), int(l2), int(need_grad), torch.get_num_threads(), T,
+    _lib(dt)(mode, n, V, L, P, int(ks_factor), int(l2), int(need_grad), torch.get_num_threads(), T, flags,
              *map(_ptr, (tidx, tw, kd, r, ks, nl, nv, nh2, w, amp, y, wgt, gout, out, epart, *grads)))
     return out, epart, grads
 
@@ -149,7 +154,8 @@ def prepare(kd, r, ks, nl, nv, nh, vh, scale, hw, texels=None):
     the maps are texel maps of that size (or ``1 x 1``), read through taps."""
     n = max(kd.shape[0], r.shape[0], ks.shape[0])
     h, w_ = texels or hw
-    full = lambda t, c: t.expand(t.shape[0], 1, c, h, w_)  # noqa: E731  (1x1 constants -> full maps)
+    # 1x1 constants -> full maps (read through taps, a constant stays one texel)
+    full = lambda t, c: t if texels and tuple(t.shape[-2:]) == (1, 1) else t.expand(t.shape[0], 1, c, h, w_)  # noqa: E731
     maps = (_flat(full(kd, 3), n, 3), _flat(full(r, 1), n, 1)[:, 0], _flat(full(ks, 3), n, 3))
     return n, maps, _geometry(nl, nv, nh, vh, scale)
 
@@ -178,7 +184,8 @@ class NativeShade(torch.autograd.Function):
         saved = ctx.saved_tensors
         n = saved[1].shape[0]
         g = gout.reshape(n, gout.shape[1], 3, -1).contiguous()
-        _, _, grads = _call(MODE_IMAGE_BWD, saved[:3], saved[3:], ks_factor, gout=g, taps=tp)
+        _, _, grads = _call(MODE_IMAGE_BWD, saved[:3], saved[3:], ks_factor, gout=g, taps=tp,
+                            no_grad=tuple(not f for f in ctx.needs_input_grad[:3]))
         return (*_unflat(grads, shapes), None, None, None, None, None, None, None)
 
 
@@ -193,7 +200,8 @@ class NativeLoss(torch.autograd.Function):
         yy = y.reshape(y.shape[0], 3, -1).contiguous()
         ww = wgt.expand(y.shape[0], 1, *hw).reshape(y.shape[0], -1).contiguous()
         _, epart, grads = _call(MODE_LOSS, maps, geo, ks_factor, y=yy, wgt=ww, l2=not l1, need_grad=need,
-                                taps=None if taps is None else taps[:2])
+                                taps=None if taps is None else taps[:2],
+                                no_grad=tuple(not f for f in ctx.needs_input_grad[:3]))
         if need:
             ctx.save_for_backward(*grads)
         ctx.shapes = (kd.shape, r.shape, ks.shape)

@@ -225,6 +225,27 @@ def compacted(g: GBuffer) -> tuple[GBuffer, Tensor]:
     return hit
 
 
+def _compact_data(g: GBuffer, sel: Tensor, target: Tensor, weight, kind: str):
+    """Target and weight at the compacted pixels ``[1, 1, K, ...]`` and the loss of the pixels off the surface
+    (they render 0, so it does not depend on the maps); kept on ``g`` while the same tensors come again
+    (a sampler's every step)."""
+    wt = torch.as_tensor(weight, device=target.device, dtype=target.dtype)
+    key = (id(target), target._version, id(wt), wt._version, kind)
+    hit = g.__dict__.get("_compact_data")
+    if hit is not None and hit[0] == key and hit[1][0] is target and hit[1][1] is wt:
+        return hit[2]
+    V, (h, w) = g.num_views, g.resolution
+    we = wt.expand(V, h, w) if wt.dim() < 3 else wt
+    off = ~sel
+    const = None
+    if bool(off.any()):
+        y = target[off]
+        const = (we[off][:, None] * (y.abs() if kind == "l1" else y * y)).sum()
+    out = (target[sel][None, None].contiguous(), we[sel][None, None].contiguous(), const)
+    g.__dict__["_compact_data"] = (key, (target, wt), out)
+    return out
+
+
 def shade_loss(maps: SVBRDF, g: GBuffer, target: Tensor, weight: Tensor | float = 1.0, *, kind: str = "l1",
                ks_factor: bool = True, eps: float = 1e-8, chunk_views: int | None = None,
                backend: str = "auto") -> Tensor:
@@ -257,15 +278,9 @@ def shade_loss(maps: SVBRDF, g: GBuffer, target: Tensor, weight: Tensor | float 
         # views whose pixels are not the texels (a mesh, perspective views of the plane): only the pixels that
         # see the surface, as one 1 x K view, so masked pixels cost nothing and the fused kernel applies
         c, sel = compacted(g)
-        wt = torch.as_tensor(weight, device=target.device, dtype=target.dtype)
-        wt = wt.expand(V, h, w) if wt.dim() < 3 else wt
-        loss = shade_loss(maps, c, target[sel][None, None], wt[sel][None, None], kind=kind, ks_factor=ks_factor,
-                          eps=eps, backend=backend)
-        off = ~sel                        # pixels off the surface render 0: their loss does not depend on the maps
-        if bool(off.any()):
-            y = target[off].to(loss.dtype)
-            loss = loss + (wt[off].to(loss.dtype)[:, None] * (y.abs() if kind == "l1" else y * y)).sum()
-        return loss
+        yc, wc, const = _compact_data(g, sel, target, weight, kind)
+        loss = shade_loss(maps, c, yc, wc, kind=kind, ks_factor=ks_factor, eps=eps, backend=backend)
+        return loss + const if const is not None else loss
     n, g, chunks = _chunks(maps, g, eps, chunk_views, texel_space=backend != "eager")
     dev, dt = maps.albedo.device, maps.albedo.dtype
     y = target.to(device=dev, dtype=dt).permute(0, 3, 1, 2)

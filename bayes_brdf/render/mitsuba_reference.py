@@ -1,0 +1,480 @@
+"""An independent reference for mesh renders: Mitsuba 3's own ``direct`` integrator shading our maps.
+
+:func:`render_reference` renders the same mesh, views and maps as :func:`bayes_brdf.render.shade.render`,
+but everything after the camera ray is Mitsuba's: its ``direct`` integrator (emitter sampling, one
+``point`` emitter per pass, visibility by its own shadow rays and offsets), its ``bitmap`` textures
+(bilinear, clamped) and a custom Python BSDF (:data:`BSDF_NAME`) that writes the MaterialGAN microfacet
+BRDF of :mod:`bayes_brdf.render.brdf` again in Dr.Jit (it calls none of our torch code). Two cameras:
+
+* ``camera="rays"`` (default): our pixel-centre rays (:meth:`PerspectiveCamera.rays`) go into
+  ``integrator.sample(scene, sampler, ray)``; this isolates shading and visibility, and one sample per
+  pixel is exact (a point light is a delta emitter, and each pass holds one light).
+* ``camera="sensor"``: a Mitsuba ``perspective`` sensor matching :class:`PerspectiveCamera` (``fov``
+  along x, ``look_at`` with the camera's orthonormal up, the film's width and height), a box filter and
+  ``spp`` random samples per pixel: pixel *areas* rather than pixel centres, so silhouettes and shadow
+  edges are antialiased where ours are not.
+
+Conventions (found by test, ``tests/render/test_mitsuba_equivalence.py``):
+
+* Mitsuba's ``bitmap`` texture reads data row ``j`` at ``v = (j + 0.5) / H`` (row 0 at ``v = 0``),
+  ours reads texel row 0 at ``v = 1``: the maps go into the bitmaps flipped upside down. Texel
+  centres at ``(i + 0.5) / W`` and ``wrap_mode="clamp"`` match ``grid_sample(align_corners=False,
+  padding_mode="border")``; ``raw=True`` keeps the values linear (and the normal map's negative
+  components).
+* The BSDF builds our shading frame itself in world space from the surface interaction, as
+  :mod:`.raycast` does: two-sided by the *geometric* normal against the incoming direction (both
+  normals flipped to face the camera), tangent = ``dp/du`` made orthogonal to the shading normal,
+  bitangent ``n x t`` turned to follow ``+v`` (``dp/dv``); the tangent-space normal map is
+  ``x t + y b + z n``, normalised.
+* Every cosine (``n.l, n.v, n.h, v.h``, with the mapped normal) is clamped at ``eps`` as ours are, and
+  ``eval`` returns ``f * (n.l)``: Mitsuba's point emitter gives ``intensity / d^2``, so ``intensity``
+  = our light power.
+
+Differences that remain, by design:
+
+* Shadow rays: Mitsuba's ``spawn_ray_to`` leaves the surface by ``(1 + max|p|) * RayEpsilon``
+  (``RayEpsilon`` ~ 8.9e-5) along the geometric normal, ours by
+  :data:`~bayes_brdf.render.raycast.SHADOW_EPS` times the mesh radius. A shadow ray grazing an
+  occluder's silhouette can catch it with one offset and miss it with the other, so a pixel or a few
+  exactly on a shadow edge differ (lit in one render, shadowed in the other); every other pixel agrees.
+* Precision: Mitsuba shades in float32 (ours: float32 hits, float64 shading), its bitmaps hold float32.
+* A map with a side of one texel is doubled on that side (Mitsuba's bitmap refuses new data smaller
+  than 2 x 2; clamped bilinear lookup reads the same values).
+* Lights: the ``direct`` integrator with one emitter sample would pick one of several lights at random
+  (weighted by their count), so each light is its own pass with the only emitter in the scene, and the
+  passes are summed -- exact, where more emitter samples would only be unbiased.
+* The BSDF's ``sample`` is a cosine-weighted lobe about the shading normal, there for completeness:
+  point lights need no BSDF sampling and the integrator runs with ``bsdf_samples=0``.
+* Lights without distance falloff and rectified cameras have no Mitsuba counterpart and are refused.
+* ``camera="sensor"`` integrates each pixel's area (random samples, box filter): it differs from our
+  pixel centres at silhouettes, creases and shadow edges, and by Monte Carlo noise elsewhere.
+
+PSNR (:func:`psnr`) is on linear radiance over all pixels, views and channels, with the peak the
+maximum of *our* image.
+"""
+from __future__ import annotations
+
+import math
+import threading
+from collections import OrderedDict
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from ..errors import InputError
+from ..mitsuba_env import mitsuba_variant
+from .cameras import PerspectiveCamera
+from .lights import PointLight
+from .maps import SVBRDF
+from .views import View
+
+#: the name the reference BSDF is registered under (per Mitsuba variant)
+BSDF_NAME = "bayes_brdf_microfacet"
+
+#: the camera kinds of :func:`render_reference`
+CAMERAS = ("rays", "sensor")
+
+_LOCK = threading.Lock()
+_REGISTERED: set[str] = set()
+_MAPS = ("albedo", "roughness", "specular", "normal")
+
+
+def _register(mi) -> None:
+    """Define the BSDF class for the active variant and register it (once per variant)."""
+    variant = mi.variant()
+    if variant in _REGISTERED:
+        return
+    import drjit as dr
+
+    class MicrofacetBSDF(mi.BSDF):
+        """MaterialGAN's microfacet BRDF (GGX, Smith-Schlick, spherical-Gaussian Schlick Fresnel,
+        ``kd (1 - ks) / pi`` diffuse) with a tangent-space normal map, two-sided, in Dr.Jit."""
+
+        def __init__(self, props):
+            mi.BSDF.__init__(self, props)
+            self.albedo = props["albedo"]
+            self.roughness = props["roughness"]
+            self.specular = props["specular"]
+            self.normalmap = props["normal"]
+            self.eps = float(props["eps"]) if "eps" in props else 1e-8
+            self.ks_factor = bool(props["ks_factor"]) if "ks_factor" in props else True
+            flags = (mi.BSDFFlags.DiffuseReflection | mi.BSDFFlags.GlossyReflection
+                     | mi.BSDFFlags.FrontSide | mi.BSDFFlags.BackSide)
+            self.m_components = [flags]
+            self.m_flags = flags
+
+        def _frame(self, si, active):
+            """World ``(mapped normal, shading normal, direction to the camera)``, faced to the camera."""
+            wi = si.to_world(si.wi)
+            flip = dr.select(dr.dot(si.n, wi) < 0, -1.0, 1.0)        # two-sided by the geometric normal
+            ng, ns = si.n * flip, si.sh_frame.n * flip
+            ns = dr.normalize(dr.select(dr.squared_norm(ns) > 0, ns, ng))
+            tu = si.dp_du - ns * dr.dot(ns, si.dp_du)
+            fallback, _ = mi.coordinate_system(ns)
+            t = dr.normalize(dr.select(dr.squared_norm(tu) > 1e-24, tu, fallback))
+            b = dr.cross(ns, t)
+            b = b * dr.select(dr.dot(b, si.dp_dv) < 0, -1.0, 1.0)       # bitangent along +v
+            nt = self.normalmap.eval(si, active)
+            nw = t * nt[0] + b * nt[1] + ns * nt[2]
+            nw = nw * dr.rsqrt(dr.maximum(dr.squared_norm(nw), 1e-30))
+            return nw, ns, wi
+
+        def _value(self, si, wo, active):
+            nw, ns, wi = self._frame(si, active)
+            lo = si.to_world(wo)
+            h = wi + lo
+            h = h * dr.rsqrt(dr.maximum(dr.squared_norm(h), 1e-30))
+            eps = self.eps
+            nl = dr.maximum(dr.dot(nw, lo), eps)
+            nv = dr.maximum(dr.dot(nw, wi), eps)
+            nh = dr.maximum(dr.dot(nw, h), eps)
+            vh = dr.maximum(dr.dot(wi, h), eps)
+            kd = self.albedo.eval(si, active)
+            ks = self.specular.eval(si, active)
+            r = self.roughness.eval_1(si, active)
+            alpha = r * r
+            a2 = alpha * alpha
+            den = nh * nh * (a2 - 1.0) + 1.0
+            d = a2 * dr.inv_pi / (den * den)
+            k = alpha * 0.5
+            g = nl / (nl * (1.0 - k) + k) * (nv / (nv * (1.0 - k) + k))
+            fr = ks + (1.0 - ks) * dr.exp2(((-5.55473) * vh - 6.98316) * vh)
+            diffuse = kd * (1.0 - ks) * dr.inv_pi if self.ks_factor else kd * dr.inv_pi
+            f = diffuse + fr * (d * g / (4.0 * nl * nv))
+            return dr.select(active, f * nl, 0.0), ns, lo
+
+        def eval(self, ctx, si, wo, active=True):
+            return self._value(si, wo, active)[0]
+
+        def pdf(self, ctx, si, wo, active=True):
+            _, ns, wi = self._frame(si, active)
+            lo = si.to_world(wo)
+            return dr.select(active, dr.maximum(dr.dot(ns, lo), 0.0) * dr.inv_pi, 0.0)
+
+        def eval_pdf(self, ctx, si, wo, active=True):
+            value, ns, lo = self._value(si, wo, active)
+            return value, dr.select(active, dr.maximum(dr.dot(ns, lo), 0.0) * dr.inv_pi, 0.0)
+
+        def sample(self, ctx, si, sample1, sample2, active=True):
+            _, ns, _ = self._frame(si, active)
+            lo = mi.Frame3f(ns).to_world(mi.warp.square_to_cosine_hemisphere(sample2))
+            bs = dr.zeros(mi.BSDFSample3f)
+            bs.wo = si.to_local(lo)
+            bs.pdf = dr.maximum(dr.dot(ns, lo), 0.0) * dr.inv_pi
+            bs.eta = 1.0
+            bs.sampled_type = mi.UInt32(+mi.BSDFFlags.DiffuseReflection)
+            bs.sampled_component = mi.UInt32(0)
+            value = self._value(si, bs.wo, active)[0]
+            ok = active & (bs.pdf > 0)
+            return bs, dr.select(ok, value / dr.maximum(bs.pdf, 1e-30), 0.0)
+
+        def traverse(self, callback):
+            for name, tex in (("albedo", self.albedo), ("roughness", self.roughness),
+                              ("specular", self.specular), ("normal", self.normalmap)):
+                callback.put(name, tex, mi.ParamFlags.Differentiable)
+
+        def parameters_changed(self, keys):
+            pass
+
+        def to_string(self):
+            return f"MicrofacetBSDF[eps={self.eps}, ks_factor={self.ks_factor}]"
+
+    mi.register_bsdf(BSDF_NAME, lambda props: MicrofacetBSDF(props))
+    _REGISTERED.add(variant)
+
+
+def _bitmap_data(t: Tensor) -> np.ndarray:
+    """A map ``[C, H, W]`` as Mitsuba bitmap data ``[H, W, C]`` float32, rows flipped (Mitsuba: row 0 at
+    v = 0); a side of one texel is doubled (a bitmap whose data change must be at least 2 x 2; with clamped
+    bilinear lookup the copy reads the same)."""
+    a = t.detach().to("cpu", torch.float32).numpy().transpose(1, 2, 0)[::-1]
+    a = np.repeat(a, 2 if a.shape[0] == 1 else 1, axis=0)
+    return np.ascontiguousarray(np.repeat(a, 2 if a.shape[1] == 1 else 1, axis=1))
+
+
+class ReferenceScene:
+    """A mesh in Mitsuba with the reference BSDF, one point light and a ``direct`` integrator; built once
+    per mesh (the Python BSDF's kernels compile on the first render), maps and light set per call. Its
+    methods other than the constructor run inside ``mitsuba_variant(self.variant)`` (as
+    :func:`render_reference` calls them).
+
+    Example:
+        >>> from bayes_brdf.render.mesh import Mesh                  # doctest: +SKIP
+        >>> rs = ReferenceScene(Mesh.sphere())                       # doctest: +SKIP
+    """
+
+    def __init__(self, mesh, variant: str | None = None):
+        self.mesh = mesh
+        with mitsuba_variant(variant) as mi:
+            self.variant = mi.variant()
+            _register(mi)
+            one = lambda c: {"type": "bitmap", "data": mi.TensorXf(np.full((2, 2, c), 0.5, np.float32)),  # noqa: E731
+                             "raw": True, "filter_type": "bilinear", "wrap_mode": "clamp"}
+            bsdf = mi.load_dict({"type": BSDF_NAME, "albedo": one(3), "roughness": one(1), "specular": one(3),
+                                 "normal": one(3)})
+            m = mi.Mesh(mesh.name or "mesh", mesh.num_vertices, mesh.num_faces, has_vertex_normals=True,
+                        has_vertex_texcoords=True)
+            p = mi.traverse(m)
+            p["vertex_positions"] = mi.Float(np.ascontiguousarray(mesh.vertices, np.float32).ravel())
+            p["vertex_normals"] = mi.Float(np.ascontiguousarray(mesh.normals, np.float32).ravel())
+            p["vertex_texcoords"] = mi.Float(np.ascontiguousarray(mesh.uv, np.float32).ravel())
+            p["faces"] = mi.UInt(np.ascontiguousarray(mesh.faces, np.uint32).ravel())
+            p.update()
+            m.set_bsdf(bsdf)
+            self.bsdf = bsdf
+            self.textures = {name: getattr(bsdf, "normalmap" if name == "normal" else name) for name in _MAPS}
+            self.scene = mi.load_dict({
+                "type": "scene", "mesh": m,
+                "light": {"type": "point", "position": [0.0, 0.0, 0.0], "intensity": {"type": "rgb", "value": 1.0}},
+            })
+            self.integrator = mi.load_dict({"type": "direct", "emitter_samples": 1, "bsdf_samples": 0})
+            self.params = mi.traverse(self.scene)
+            self._sensor = None
+
+    # ---------------------------------------------------------------- state
+    def set_maps(self, maps: SVBRDF, *, eps: float = 1e-8, ks_factor: bool = True) -> None:
+        """Load ``maps`` (no particle dimension) into the bitmap textures (inside a variant block)."""
+        import mitsuba as mi
+        for name, t in maps.items():
+            tp = mi.traverse(self.textures[name])
+            tp["data"] = mi.TensorXf(_bitmap_data(t))
+            tp.update()
+        self.bsdf.eps, self.bsdf.ks_factor = float(eps), bool(ks_factor)
+
+    def set_light(self, light) -> None:
+        import mitsuba as mi
+        self.params["light.position"] = mi.Point3f(*light.position)
+        self.params["light.intensity.value"] = mi.Color3f(*light.power)
+        self.params.update()
+
+    # ---------------------------------------------------------------- renders
+    def render_rays(self, camera: PerspectiveCamera, lights, seed: int = 0) -> Tensor:
+        """``[H, W, 3]``: the pixel-centre rays of ``camera`` through ``integrator.sample``, summed over ``lights``."""
+        import drjit as dr
+        import mitsuba as mi
+        h, w = camera.resolution
+        o, d = camera.rays(dtype=torch.float64)
+        d = np.ascontiguousarray(d.reshape(3, -1).float().numpy())
+        n = h * w
+        ray = mi.RayDifferential3f(mi.Point3f(*(mi.Float(np.full(n, float(x), np.float32)) for x in o.tolist())),
+                                   mi.Vector3f(mi.Float(d[0]), mi.Float(d[1]), mi.Float(d[2])))
+        sampler = mi.load_dict({"type": "independent"})
+        out = np.zeros((3, n), np.float64)
+        for light in lights:
+            self.set_light(light)
+            sampler.seed(seed, n)
+            spec, _, _ = self.integrator.sample(self.scene, sampler, ray, None, True)
+            dr.eval(spec)
+            out += np.stack([np.asarray(spec[0]), np.asarray(spec[1]), np.asarray(spec[2])]).astype(np.float64)
+        return torch.from_numpy(out.reshape(3, h, w).transpose(1, 2, 0).copy())
+
+    def render_sensor(self, camera: PerspectiveCamera, lights, spp: int = 64, seed: int = 0) -> Tensor:
+        """``[H, W, 3]``: a Mitsuba ``perspective`` sensor like ``camera`` (box filter, ``spp`` samples per
+        pixel), summed over ``lights``."""
+        import mitsuba as mi
+        h, w = camera.resolution
+        _, u, f = camera.frame()
+        pos = camera.position
+        to_world = mi.ScalarTransform4f().look_at(origin=list(pos), target=[pos[i] + float(f[i]) for i in range(3)],
+                                                  up=[float(x) for x in u])
+        if self._sensor is None or self._sensor[0] != (h, w):
+            sensor = mi.load_dict({
+                "type": "perspective", "fov": float(camera.fov), "fov_axis": "x", "to_world": to_world,
+                "near_clip": 1e-3 * self.mesh.radius, "far_clip": 1e4 * max(self.mesh.radius, 1.0),
+                "film": {"type": "hdrfilm", "width": w, "height": h, "rfilter": {"type": "box"},
+                         "pixel_format": "rgb", "sample_border": False},
+                "sampler": {"type": "independent", "sample_count": spp}})
+            self._sensor = ((h, w), sensor, mi.traverse(sensor))
+        _, sensor, sp = self._sensor
+        sp["to_world"] = to_world
+        sp["x_fov"] = float(camera.fov)
+        sp.update()
+        out = torch.zeros(h, w, 3, dtype=torch.float64)
+        for i, light in enumerate(lights):
+            self.set_light(light)
+            img = mi.render(self.scene, sensor=sensor, integrator=self.integrator, spp=spp, seed=seed + 7919 * i)
+            out += torch.from_numpy(np.array(img, dtype=np.float64)[..., :3])
+        return out
+
+
+class _Cache:
+    """Reference scenes by (mesh digest, variant), a few, least recently used out first."""
+
+    def __init__(self, max_entries: int = 4):
+        self._store: OrderedDict = OrderedDict()
+        self.max_entries = max_entries
+
+    def get(self, mesh, variant: str) -> ReferenceScene:
+        key = (mesh.digest, variant)
+        if key in self._store:
+            self._store.move_to_end(key)
+            return self._store[key]
+        rs = ReferenceScene(mesh, variant)
+        self._store[key] = rs
+        while len(self._store) > self.max_entries:
+            self._store.popitem(last=False)
+        return rs
+
+
+#: the reference scenes built so far
+SCENES = _Cache()
+
+
+def _check(maps: SVBRDF, views) -> SVBRDF:
+    if maps.num_particles is not None:
+        if maps.num_particles != 1:
+            raise InputError(f"the reference renders one set of maps, got {maps.num_particles} particles",
+                             fix="pass maps.particle(i)")
+        maps = maps.particle(0)
+    for k, v in enumerate(views):
+        if not isinstance(v.camera, PerspectiveCamera):
+            raise InputError(f"view {k} has a {type(v.camera).__name__}; the Mitsuba reference needs a "
+                             "PerspectiveCamera", fix="use perspective views of the mesh")
+        if any(not l.falloff for l in v.lights):
+            raise InputError(f"view {k} has a light without distance falloff, which Mitsuba's point emitter "
+                             "cannot represent", fix="use PointLight(..., falloff=True)")
+    return maps
+
+
+def render_reference(maps: SVBRDF, views, mesh, *, camera: str = "rays", spp: int = 64, eps: float = 1e-8,
+                     ks_factor: bool = True, seed: int = 0, variant: str | None = None) -> Tensor:
+    """Mitsuba's render ``[V, H, W, 3]`` (float64, linear radiance) of ``maps`` on ``mesh`` under ``views``.
+
+    The counterpart of ``shade.render(maps, views, mesh)[0]`` (see the module docstring): ``camera``
+    ``"rays"`` shades our pixel-centre rays (exact with one sample; ``spp`` unused), ``"sensor"`` renders
+    through a Mitsuba perspective sensor with ``spp`` samples per pixel and a box filter. ``eps`` and
+    ``ks_factor`` as in :func:`~bayes_brdf.render.shade.shade`; ``variant`` defaults to the project's
+    (:func:`~bayes_brdf.mitsuba_env.default_variant`). Each light of a view is one pass with one point
+    emitter in the scene, and the passes are summed.
+
+    Example:
+        >>> from bayes_brdf.render import SVBRDF, collocated_views     # doctest: +SKIP
+        >>> from bayes_brdf.render.mesh import Mesh                    # doctest: +SKIP
+        >>> views = collocated_views(2, 4.0, resolution=32, power=20)  # doctest: +SKIP
+        >>> render_reference(SVBRDF.constant(), views, Mesh.sphere()).shape   # doctest: +SKIP
+        torch.Size([2, 32, 32, 3])
+    """
+    if camera not in CAMERAS:
+        raise InputError(f"unknown reference camera {camera!r}", fix=f"use one of {', '.join(CAMERAS)}")
+    if variant is not None and not (variant.startswith(("llvm_", "cuda_")) and variant.endswith("_rgb")):
+        raise InputError(f"the reference needs a JIT RGB Mitsuba variant (a Python BSDF), got {variant!r}",
+                         fix="use llvm_ad_rgb or cuda_ad_rgb")
+    if int(spp) < 1:
+        raise InputError(f"spp must be >= 1, got {spp}")
+    views = list(views)
+    if not views:
+        raise InputError("no views given", fix="pass at least one View")
+    maps = _check(maps, views)
+    res = {tuple(v.resolution) for v in views}
+    if len(res) != 1:
+        raise InputError(f"views have different resolutions {sorted(res)}", fix="render them in separate calls")
+    with _LOCK, mitsuba_variant(variant) as mi:
+        rs = SCENES.get(mesh, mi.variant())
+        rs.set_maps(maps, eps=eps, ks_factor=ks_factor)
+        imgs = [rs.render_rays(v.camera, v.lights, seed) if camera == "rays" else
+                rs.render_sensor(v.camera, v.lights, int(spp), seed + 104729 * k) for k, v in enumerate(views)]
+    return torch.stack(imgs)
+
+
+def psnr(ours: Tensor, other: Tensor, peak: float | None = None) -> float:
+    """PSNR in dB of ``other`` against ``ours`` on linear radiance over every element, with ``peak`` the
+    maximum of ``ours`` (unless given): ``10 log10(peak^2 / mean((ours - other)^2))`` (inf when equal).
+
+    Example:
+        >>> import torch
+        >>> round(psnr(torch.tensor([1.0, 0.0]), torch.tensor([0.9, 0.0])), 2)
+        23.01
+    """
+    a, b = ours.double(), other.double()
+    if a.shape != b.shape:
+        raise InputError(f"images have shapes {tuple(a.shape)} and {tuple(b.shape)}")
+    mse = float(((a - b) ** 2).mean())
+    p = float(a.max()) if peak is None else float(peak)
+    return math.inf if mse == 0 else 10 * math.log10(p * p / mse)
+
+
+# ---------------------------------------------------------------------- the equivalence check's scenes
+#: camera direction and its lights ``(direction, relative irradiance at the centre)`` per view, by mesh kind;
+#: each set has a low light whose shadows fall on the visible surface (the box on the ground, the bowl's rim
+#: into its cavity, the bunny's head and ears onto its body)
+CHECK_VIEWS = {
+    "block_on_plane": [((1.0, -0.8, 1.0), [((-1.0, 0.25, 0.6), 1.0), ((0.4, 1.0, 1.2), 0.4)]),
+                       ((-0.4, -1.2, 0.8), [((1.0, 0.5, 0.35), 1.0)]),
+                       ((0.2, 0.3, 1.0), [((-0.6, -1.0, 0.5), 1.0)])],
+    "bowl": [((0.3, -0.4, 1.0), [((1.0, 0.2, 0.35), 1.0)]),
+             ((-0.8, 0.6, 1.0), [((-0.3, -1.0, 0.4), 1.0), ((1.0, 1.0, 1.5), 0.3)]),
+             ((0.0, 1.0, 0.7), [((0.2, -1.0, 0.6), 1.0)])],
+    "bunny": [((1.0, -1.0, 0.5), [((-1.0, -1.0, 1.0), 1.0)]),
+              ((-1.0, -1.0, 0.3), [((-1.0, 0.0, 1.0), 1.0), ((1.0, -1.0, 0.3), 0.3)]),
+              ((0.2, -0.5, 1.0), [((-1.0, 1.0, 1.0), 1.0)]),
+              ((0.3, 1.0, 0.6), [((-1.0, 0.0, 1.0), 1.0)])],
+}
+
+
+def check_views(mesh, kind: str, resolution=64, *, distance: float = 2.8, light_distance: float = 3.0,
+                fov: float = 40.0) -> list[View]:
+    """The views of the equivalence check for a mesh of ``kind`` (a key of :data:`CHECK_VIEWS`): cameras at
+    ``distance`` mesh radii from its centre looking at it (up ``+z``), point lights at ``light_distance``
+    radii with powers that give the listed irradiance at the centre. The fov alternates ``fov`` and
+    ``fov + 5`` (so a sensor's fov is updated between views).
+
+    Example:
+        >>> from bayes_brdf.render.mesh import Mesh
+        >>> [len(v.lights) for v in check_views(Mesh.block_on_plane(), "block_on_plane", 16)]
+        [2, 1, 1]
+    """
+    if kind not in CHECK_VIEWS:
+        raise InputError(f"no check views for {kind!r}", fix=f"use one of {', '.join(CHECK_VIEWS)}")
+    c, r = np.asarray(mesh.center), mesh.radius
+
+    def at(d, dist):
+        d = np.asarray(d, np.float64)
+        return tuple((c + dist * r * d / np.linalg.norm(d)).tolist())
+
+    views = []
+    for k, (cd, lights) in enumerate(CHECK_VIEWS[kind]):
+        cam = PerspectiveCamera(at(cd, distance), target=tuple(c.tolist()), up=(0.0, 0.0, 1.0),
+                                fov=fov + 5.0 * (k % 2), resolution=resolution)
+        ls = tuple(PointLight(at(ld, light_distance), p * (light_distance * r) ** 2) for ld, p in lights)
+        views.append(View(cam, ls, name=f"{kind}{k}"))
+    return views
+
+
+def sinusoid_maps(resolution: int = 48, dtype=torch.float64) -> SVBRDF:
+    """Smooth spatially varying maps for the check: sinusoidal albedo, roughness in ``[0.4, 0.8]``,
+    specular around 0.05 and a normal map tilted by up to ~17 degrees along both texture axes.
+
+    Example:
+        >>> m = sinusoid_maps(8)
+        >>> m.albedo.shape, round(float(m.normal.norm(dim=0).max()), 6)
+        (torch.Size([3, 8, 8]), 1.0)
+    """
+    t = torch.linspace(0, 1, resolution, dtype=dtype)
+    y, x = torch.meshgrid(t, t, indexing="ij")
+    albedo = torch.stack([0.5 + 0.3 * torch.sin(6.3 * x), 0.4 + 0.3 * torch.cos(5 * y),
+                          0.3 + 0.2 * torch.sin(4 * (x + y))])
+    roughness = (0.6 + 0.2 * torch.sin(5 * x + 3 * y))[None]
+    specular = torch.stack([0.04 + 0.03 * torch.cos(3 * x), torch.full_like(x, 0.05), 0.06 + 0.03 * torch.sin(7 * y)])
+    n = torch.stack([0.3 * torch.sin(8 * x), 0.25 * torch.cos(6 * y), torch.ones_like(x)])
+    return SVBRDF(albedo, roughness, specular, n / n.norm(dim=0, keepdim=True))
+
+
+class Unshadowed:
+    """``mesh`` with its shadow tests turned off (same hits, nothing occludes a light), for showing that a
+    comparison needs shadows: ``shade(maps, GBuffer.build(views, Unshadowed(mesh)))``.
+
+    Example:
+        >>> from bayes_brdf.render.mesh import Mesh
+        >>> Unshadowed(Mesh.sphere()).occluded(None, None) is None
+        True
+    """
+
+    def __init__(self, mesh):
+        self.mesh = mesh
+
+    def intersect(self, cameras):
+        return self.mesh.intersect(cameras)
+
+    def occluded(self, hits, light_positions):
+        return None
