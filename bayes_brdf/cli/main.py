@@ -4,7 +4,8 @@ Commands (``bayes-brdf COMMAND --help`` for each):
 
 * ``render MATERIAL``  -- shade a procedural material or a maps folder under
   generated views (or a capture's views) and write an observation bundle
-  (images + ``observations.json``) plus sRGB previews.
+  (images + ``observations.json``) plus sRGB previews; with ``--mesh``, on a
+  mesh, written as a ``transforms.json`` capture.
 * ``inspect CAPTURE``  -- what a capture (any supported format) contains.
 * ``infer CAPTURE``    -- sample the posterior of a material model with any sampler
   (name or preset file); writes the posterior, mean and std maps.
@@ -55,7 +56,7 @@ def threading_main() -> bool:
     return threading.current_thread() is threading.main_thread()
 
 
-def _views_from_spec(spec: str, a) -> list:
+def _views_from_spec(spec: str, a, target=(0.0, 0.0, 0.0)) -> list:
     from ..render.views import View, collocated_views, orbit_views
 
     p = Path(spec)
@@ -75,7 +76,7 @@ def _views_from_spec(spec: str, a) -> list:
     kind, _, num = spec.partition(":")
     if kind not in ("fibonacci", "sobol", "random", "orbit") or not num.isdigit() or int(num) < 1:
         raise InputError(f"bad --views '{spec}'", fix="use fibonacci:N, sobol:N, random:N, orbit:N or a JSON file of views")
-    common = dict(camera=a.camera, resolution=a.resolution, fov=a.fov, power=a.power)
+    common = dict(camera=a.camera, resolution=a.resolution, fov=a.fov, power=a.power, target=target)
     if kind == "orbit":
         return orbit_views(int(num), a.radius, zenith=a.max_zenith / 2, **common)
     return collocated_views(int(num), a.radius, method=kind, max_zenith=a.max_zenith, seed=a.seed, **common)
@@ -93,25 +94,61 @@ def _load_material(name: str, a):
     return make_material(name, a.resolution or 128, seed=a.seed)
 
 
+_BUILTIN_MESHES = ("sphere", "bowl", "block", "plane")
+
+
+def _load_mesh(spec: str, a):
+    """``--mesh``: a mesh file (with ``--mesh-units`` / ``--mesh-up``) or a built-in shape name."""
+    from ..render.mesh import Mesh
+
+    p = Path(spec)
+    if p.is_file():
+        return Mesh.load(p, units=a.mesh_units, up=a.mesh_up)
+    if spec in _BUILTIN_MESHES:
+        return {"sphere": Mesh.sphere, "bowl": Mesh.bowl, "block": Mesh.block_on_plane, "plane": Mesh.plane}[spec]()
+    raise InputError(f"--mesh {spec!r} is neither a mesh file nor a built-in shape",
+                     fix=f"give an OBJ/PLY/GLB file or one of {', '.join(_BUILTIN_MESHES)}")
+
+
 def cmd_render(a) -> int:
     import torch
     from tqdm import tqdm
 
-    from ..io import load_capture, save_observations, save_svbrdf, write_png
+    from ..io import load_capture, save_observations, save_svbrdf, save_transforms, write_png
     from ..observations import Observations
     from ..render.gbuffer import GBuffer
     from ..render.shade import shade
     from ..render.surface import PlanarSample
     from ..io.outputs import check_folder
 
+    if a.mesh and a.capture:
+        raise InputError("--mesh and --capture both give the geometry", fix="use one of them")
+    if a.mesh and a.camera == "rectified":
+        raise InputError("--camera rectified cannot look at a --mesh (it only images the planar sample)",
+                         fix="use --camera perspective")
     check_folder(a.out)
+    transforms = False
     if a.capture:
         cap = load_capture(a.capture, resolution=a.resolution, max_resolution=128)
         views, surface = cap.views, cap.surface
         a.resolution = a.resolution or cap.resolution[0]
+        transforms = cap.meta.get("format") == "transforms"
+    elif a.mesh:
+        surface = _load_mesh(a.mesh, a)
+        a.resolution = a.resolution or 128
+        a.radius = a.radius or 3.0 * surface.radius      # the bounding sphere spans ~85% of a 45-degree fov
+        a.power = a.power or 20.0 * (a.radius / 3.0) ** 2   # as bright as the default planar sample
+        views = _views_from_spec(a.views, a, target=surface.center)
+        transforms = True
     else:
         a.resolution = a.resolution or 128
+        a.radius, a.power = a.radius or 3.0, a.power or 20.0
         views, surface = _views_from_spec(a.views, a), PlanarSample(a.sample_size)
+    if a.layout != "auto":
+        transforms = a.layout == "transforms"
+    if transforms and isinstance(surface, PlanarSample):
+        raise InputError("--layout transforms needs a mesh (a transforms.json capture stores perspective photos of "
+                         "a mesh)", fix="add --mesh PATH|sphere|bowl|block|plane, or use --layout bundle")
     maps = _load_material(a.material, a).to(dtype=torch.float32, device=a.device)
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -125,12 +162,18 @@ def cmd_render(a) -> int:
     imgs = torch.stack(images)
     obs = Observations(views, imgs, surface, meta={"source": "bayes-brdf render", "material": a.material,
                                                    "seed": a.seed, "units": "scene units"})
-    save_observations(obs, out, image_format=a.format)
+    if transforms:
+        jf = save_transforms(obs, out, image_format=a.format)
+        written = f"transforms.json, images/*.{a.format}, {json.loads(jf.read_text())['mesh']}"
+    else:
+        save_observations(obs, out, image_format=a.format)
+        written = f"observations.json, {a.format.upper()} images"
     save_svbrdf(maps.to("cpu"), out / "maps")
     for i, im in enumerate(imgs):
         write_png(out / f"preview_{i:02d}.png", im.clamp(0, 1).numpy())
-    print(f"rendered {len(views)} views of '{a.material}' at {imgs.shape[1]}x{imgs.shape[2]} -> {out}/ "
-          f"(observations.json, {a.format.upper()} images, preview_*.png, maps/)")
+    what = f"'{a.material}'" + (f" on mesh '{surface.name}'" if not isinstance(surface, PlanarSample) else "")
+    print(f"rendered {len(views)} views of {what} at {imgs.shape[1]}x{imgs.shape[2]} -> {out}/ "
+          f"({written}, preview_*.png, maps/)")
     return 0
 
 
@@ -151,22 +194,36 @@ def build_parser() -> argparse.ArgumentParser:
     r = sub.add_parser("render", help="render a material under views and write an observation bundle",
                        description="Render a procedural material (wood, tiles, marble, scratched_metal, leather, fabric) "
                                    "or a maps folder under generated views or a capture's views. Writes an observation "
-                                   "bundle (observations.json + images), sRGB previews and the maps.")
+                                   "bundle (observations.json + images), sRGB previews and the maps. With --mesh the "
+                                   "material covers a mesh (through its uv), the views look at the mesh centre, and the "
+                                   "result is a transforms.json capture (images, the mesh as OBJ) that inspect reads.")
     r.add_argument("material", help="procedural material name, or a folder with albedo/roughness/specular/normal maps")
     src = r.add_mutually_exclusive_group()
     src.add_argument("--views", default="fibonacci:8",
                      help="fibonacci:N, sobol:N, random:N (collocated, hemisphere), orbit:N, or a JSON file of views "
                           "(default: %(default)s)")
     src.add_argument("--capture", help="render at the views (poses, lights, sample size) of this capture instead")
+    r.add_argument("--mesh", metavar="PATH|SHAPE",
+                   help="render on a mesh: an OBJ/PLY/GLB/glTF file, or a built-in shape (sphere, bowl, block, plane); "
+                        "writes a transforms.json capture")
+    r.add_argument("--mesh-units", choices=["mm", "cm", "m", "in", "ft"], default=None,
+                   help="length unit of the --mesh file (default: cm, the scene unit)")
+    r.add_argument("--mesh-up", choices=["z", "y", "-y", "-z"], default="z",
+                   help="up axis of the --mesh file, rotated to +z (default: %(default)s; most OBJ/glTF exports: y)")
+    r.add_argument("--layout", choices=["auto", "bundle", "transforms"], default="auto",
+                   help="what to write: an observation bundle or a transforms.json capture (default: %(default)s: "
+                        "transforms with --mesh or a transforms.json --capture, else bundle)")
     r.add_argument("--seed", type=int, default=0, help="material and view-set seed (default: %(default)s)")
     r.add_argument("--resolution", type=_positive_int, default=None,
                    help="map and image resolution (default: 128; with --capture its photos' own, at most 128)")
     r.add_argument("--camera", choices=["perspective", "rectified"], default="perspective",
                    help="camera model for generated views (default: %(default)s)")
-    r.add_argument("--radius", type=_positive_float, default=3.0, help="camera distance to the sample centre (default: %(default)s)")
+    r.add_argument("--radius", type=_positive_float, default=None,
+                   help="camera distance to the sample centre (default: 3; with --mesh 3 x the mesh's bounding radius)")
     r.add_argument("--max-zenith", type=_positive_float, default=60.0, help="largest camera zenith angle in degrees (default: %(default)s)")
     r.add_argument("--fov", type=_positive_float, default=45.0, help="perspective field of view in degrees (default: %(default)s)")
-    r.add_argument("--power", type=_positive_float, default=20.0, help="flash power (radiance = f cos P / d^2) (default: %(default)s)")
+    r.add_argument("--power", type=_positive_float, default=None,
+                   help="flash power (radiance = f cos P / d^2) (default: 20; with --mesh 20 x (radius / 3)^2, as bright)")
     r.add_argument("--sample-size", type=_positive_float, default=2.0, help="side of the square sample (default: %(default)s)")
     r.add_argument("--format", choices=["exr", "png"], default="exr", help="image format of the bundle (default: %(default)s)")
     r.add_argument("--device", default="cpu", help="torch device, e.g. cpu or cuda (default: %(default)s)")
@@ -175,12 +232,14 @@ def build_parser() -> argparse.ArgumentParser:
 
     i = sub.add_parser("inspect", help="show what a capture contains",
                        description="Load a capture (MaterialGAN, svbrdf-diff-renderer parameters.json / optim.json, "
-                                   "or our observations.json bundle) and print views, resolution, poses, value ranges "
-                                   "and saturated pixels.")
-    i.add_argument("capture", help="capture folder (or its parameters.json / optim.json / observations.json)")
+                                   "a transforms.json of a mesh, or our observations.json bundle) and print views, "
+                                   "resolution, poses, value ranges and saturated pixels.")
+    i.add_argument("capture", help="capture folder (or its parameters.json / optim.json / observations.json / "
+                                   "transforms.json)")
     i.add_argument("--resolution", type=_positive_int, default=None, help="resample to this resolution (default: native)")
     i.add_argument("--format", default="auto",
-                   choices=["auto", "materialgan", "svbrdf-diff-renderer", "svbrdf-diff-renderer-optim", "bundle"],
+                   choices=["auto", "materialgan", "svbrdf-diff-renderer", "svbrdf-diff-renderer-optim", "bundle",
+                            "transforms"],
                    help="capture format (default: %(default)s, detected from the files)")
     i.set_defaults(func=cmd_inspect)
     infer_cmd.add_parser(sub)

@@ -11,9 +11,12 @@ format                         files
 ``svbrdf-diff-renderer-optim`` ``optim.json`` (``im_size``, ...) + ``NN.png``
 ``materialgan``                ``NN.png``, ``camera_pos.txt``, ``light_pos.txt``
                                (``x,y,z`` per line), ``image_size.txt``, ``light_power.txt``
+``transforms``                 ``transforms.json`` (NeRF / nerfstudio poses, plus ``mesh``,
+                               ``units`` and ``light``) + photos + a mesh file: perspective
+                               photos of an object (see :mod:`.transforms`)
 =============================  =============================================================
 
-Positions and the sample size are in cm; the sample is the square of side
+For the planar formats, positions and the sample size are in cm; the sample is the square of side
 ``image_size`` centred at the origin on ``z = 0`` and each photo is already
 rectified to its texel grid (row 0 at ``+y``). As in svbrdf-diff-renderer,
 ``idx`` selects which poses (and which ``NN.png``) are used: view ``i`` is
@@ -45,14 +48,16 @@ from ..render.lights import PointLight
 from ..render.surface import PlanarSample
 from ..render.views import View
 from .jsonfile import read_json_object
+from .transforms import is_transforms_file, load_transforms
 from .images import (IMAGE_SUFFIXES, check_gamma, parse_resolution, read_raw, resample, resample_mask, sniff_format,
                      srgb_to_linear, to_rgb)
 
 __all__ = ["load_capture", "describe", "resample_observations", "FORMATS"]
 
-FORMATS = ("materialgan", "svbrdf-diff-renderer", "svbrdf-diff-renderer-optim", "bundle")
+FORMATS = ("materialgan", "svbrdf-diff-renderer", "svbrdf-diff-renderer-optim", "bundle", "transforms")
 _MARKERS = (("bundle", "observations.json"), ("svbrdf-diff-renderer", "parameters.json"),
-            ("svbrdf-diff-renderer-optim", "optim.json"), ("materialgan", "camera_pos.txt"))
+            ("svbrdf-diff-renderer-optim", "optim.json"), ("materialgan", "camera_pos.txt"),
+            ("transforms", "transforms.json"))
 _IMAGE_NAME = re.compile(r"^(\d+)\.png$", re.IGNORECASE)
 
 
@@ -342,8 +347,9 @@ def _detect(folder: Path) -> str:
     for fmt, marker in _MARKERS:
         if (folder / marker).is_file():
             return fmt
-    raise InputError("no recognised capture files (observations.json, parameters.json, optim.json or camera_pos.txt)",
-                     where=folder, fix="point to a MaterialGAN / svbrdf-diff-renderer capture folder or a saved bundle")
+    raise InputError("no recognised capture files (observations.json, parameters.json, optim.json, camera_pos.txt "
+                     "or transforms.json)", where=folder,
+                     fix="point to a MaterialGAN / svbrdf-diff-renderer / transforms.json capture folder or a saved bundle")
 
 
 def load_capture(path, resolution: int | None = None, fmt: str = "auto", gamma=2.2, *,
@@ -351,8 +357,12 @@ def load_capture(path, resolution: int | None = None, fmt: str = "auto", gamma=2
     """Load a capture folder as :class:`~bayes_brdf.observations.Observations`.
 
     ``path`` is the capture folder (or its ``parameters.json`` / ``optim.json``
-    / ``camera_pos.txt`` / ``observations.json``). ``fmt`` is ``"auto"``
-    (detected from the files present) or one of :data:`FORMATS`.
+    / ``camera_pos.txt`` / ``observations.json`` / ``transforms*.json``). ``fmt``
+    is ``"auto"`` (detected from the files present) or one of :data:`FORMATS`.
+    A ``"transforms"`` capture (perspective photos of a mesh, see
+    :func:`~bayes_brdf.io.transforms.load_transforms`) may have non-square
+    photos: there an int ``resolution`` / ``max_resolution`` is the LONGER
+    side (aspect ratio kept) and the surface is the mesh.
     ``resolution`` (int): resample every photo to ``R x R`` (area average of
     linear values); ``None`` keeps the native size, or shrinks it to
     ``max_resolution`` when that is given and smaller (``min(native,
@@ -386,11 +396,15 @@ def load_capture(path, resolution: int | None = None, fmt: str = "auto", gamma=2
         by_marker = {m: f for f, m in _MARKERS}
         if fmt == "auto" and p.name in by_marker:
             fmt = by_marker[p.name]
+        elif fmt == "auto" and is_transforms_file(p):      # transforms_train.json, ...
+            fmt = "transforms"
     if fmt == "auto":
         fmt = _detect(folder)
     if fmt not in FORMATS:
         raise InputError(f"unknown capture format '{fmt}'", fix=f"use auto or one of: {', '.join(FORMATS)}")
     check_gamma(gamma)
+    if fmt == "transforms":     # non-square photos: resolution is the longer side
+        return load_transforms(p, resolution, gamma, max_resolution=max_resolution)
     resolution = _square_resolution(resolution, "resolution")
     max_resolution = _square_resolution(max_resolution, "max_resolution")
     if fmt == "materialgan":
@@ -442,8 +456,9 @@ def describe(obs: Observations) -> str:
     """A multi-line human summary of ``obs`` (what ``bayes-brdf inspect`` prints).
 
     Lists the format and source, number of views, resolution (and native
-    resolution), sample size in cm, gamma, and per view: camera and light
-    positions with their distance to the sample centre, light power, min /
+    resolution), sample size in cm (for a mesh: its name, faces, centre,
+    bounding radius and file), gamma, and per view: camera and light
+    positions with their distance to the sample (or mesh) centre, light power, min /
     mean / max of the linear pixel values, and the fraction of saturated pixels.
 
     Example:
@@ -458,16 +473,27 @@ def describe(obs: Observations) -> str:
     lines = [f"capture: {m.get('format', 'unknown')}  ({m.get('source', 'in memory')})"]
     nat = m.get("native_resolution")
     res = f"{h}x{w}" + (f" (native {nat[0]}x{nat[1]})" if nat and tuple(nat) != (h, w) else "")
-    lines.append(f"views: {len(obs)}   resolution: {res}   sample: {obs.surface.size:g} x {obs.surface.size:g} {units}"
-                 f" (grid {obs.surface.grid})   gamma: {m.get('gamma', '?')}")
+    surf = obs.surface
+    centre = (0.0, 0.0, 0.0)
+    if hasattr(surf, "size") and hasattr(surf, "grid"):
+        what = f"sample: {surf.size:g} x {surf.size:g} {units} (grid {surf.grid})"
+    elif hasattr(surf, "num_faces") and hasattr(surf, "center"):
+        centre = surf.center
+        what = (f"mesh: '{surf.name}' {surf.num_faces} faces, centre {_fmt3(centre)}, radius {surf.radius:.3g}{units}"
+                + (f" ({m['mesh']})" if m.get("mesh") else ""))
+    else:
+        what = f"surface: {type(surf).__name__}"
+    lines.append(f"views: {len(obs)}   resolution: {res}   {what}   gamma: {m.get('gamma', '?')}")
     im = obs.images.detach().float()
     sat = obs.saturated
     for i, v in enumerate(obs.views):
         c = v.camera.position
         x = im[i]
-        line = (f"  [{i}] {v.name or '-':>4}  camera {_fmt3(c)} d={math.dist(c, (0, 0, 0)):.3g}{units}")
+        line = (f"  [{i}] {v.name or '-':>4}  camera {_fmt3(c)} d={math.dist(c, centre):.3g}{units}")
+        if hasattr(v.camera, "fov"):
+            line += f" fov {v.camera.fov:.3g}"
         for li in v.lights:
-            line += f"  light {_fmt3(li.position)} d={math.dist(li.position, (0, 0, 0)):.3g}{units} power {_fmt3(li.power)}"
+            line += f"  light {_fmt3(li.position)} d={math.dist(li.position, centre):.3g}{units} power {_fmt3(li.power)}"
         line += f"  linear min/mean/max {x.min():.4g}/{x.mean():.4g}/{x.max():.4g}"
         if sat is not None:
             line += f"  saturated {100 * float(sat[i].float().mean()):.2f}%"
