@@ -150,14 +150,15 @@ def interval_coverage(particles: torch.Tensor, truth: torch.Tensor, levels) -> l
     return out
 
 
-def plot_candidates(path, cands, scores, picks, title):
-    """Candidate views seen from above (camera directions), coloured by ``scores``; ``picks`` ringed and numbered."""
+def plot_candidates(path, cands, scores, picks, title, centre=(0.0, 0.0, 0.0)):
+    """Candidate views seen from above (camera directions from ``centre``, the scene's), coloured by ``scores``;
+    ``picks`` ringed and numbered."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     from .uncertainty import CMAP
-    d = np.array([v.camera.position for v in cands], dtype=float)
+    d = np.array([v.camera.position for v in cands], dtype=float) - np.asarray(centre, dtype=float)
     d /= np.linalg.norm(d, axis=1, keepdims=True)
     fig, ax = plt.subplots(figsize=(4.2, 3.8))
     sc = ax.scatter(d[:, 0], d[:, 1], c=scores, cmap=CMAP, s=18)

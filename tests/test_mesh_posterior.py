@@ -52,3 +52,28 @@ def test_mesh_posterior_file_keeps_the_mesh_and_predicts_novel_views(fitted, tmp
     novel = collocated_views(2, 3.5, resolution=24, method="sobol", seed=3, power=12.0)
     std = image_std(back, novel)                              # Eq. 11 on novel views, surface from the file
     assert std.shape == (2, 24, 24, 3) and bool((std >= 0).all()) and float(std.max()) > 0
+
+
+@pytest.fixture(scope="module")
+def bowl_obs():
+    mesh = Mesh.bowl(rings=12, segments=32)
+    views = collocated_views(5, 3.0, resolution=24, target=mesh.center, power=10.0, method="sobol")
+    truth = SVBRDF.constant(albedo=0.45, roughness=0.35, specular=0.04)
+    return bb.Observations(views, render(truth, views, mesh)[0], mesh)
+
+
+@pytest.mark.parametrize("sampler", sorted(bb.samplers.SAMPLERS))
+def test_every_sampler_runs_on_a_mesh(sampler, bowl_obs):
+    """The homogeneous model on a bowl (shadowed inside): every sampler of the registry gives finite
+    particles near the truth with the shadows in its likelihood."""
+    steps, params = 150, None
+    if sampler == "nuts":                      # one chain: warm-up, then one draw per particle
+        steps, params = 60, {"warmup_steps": 40, "thin": 1, "max_tree_depth": 4}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        post = bb.infer(bb.models.homogeneous(albedo="gray"), bowl_obs, sampler, steps=steps, particles=8,
+                        params=params, progress=False)
+    assert post.surface == bowl_obs.surface
+    for k, v in post.particles.items():
+        assert bool(torch.isfinite(v).all()), k
+    assert abs(float(post.map()["roughness"].flatten()[0]) - 0.35) < 0.1

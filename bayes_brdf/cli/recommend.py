@@ -39,6 +39,7 @@ def add_parser(sub):
 
 def _candidates(spec: str, full, fitted):
     from ..errors import InputError
+    from ..render.surface import PlanarSample
     from ..render.views import View, collocated_views
 
     if spec == "heldout":
@@ -61,11 +62,19 @@ def _candidates(spec: str, full, fitted):
     kind, _, num = spec.partition(":")
     if kind not in ("fibonacci", "sobol") or not num.isdigit() or int(num) < 1:
         raise InputError(f"bad --candidates '{spec}'", fix="use heldout, fibonacci:N, sobol:N or a JSON file of views")
+    from ..render.cameras import PerspectiveCamera
+
     v0 = full.views[0]
-    dist = sorted(math.dist(v.camera.position, (0, 0, 0)) for v in full.views)[len(full.views) // 2]
+    centre = full.surface.center
+    dist = sorted(math.dist(v.camera.position, centre) for v in full.views)[len(full.views) // 2]
     light = v0.lights[0]
-    views = collocated_views(int(num), dist, method=kind, camera="rectified", resolution=v0.resolution,
-                             power=light.power, falloff=light.falloff, max_zenith=60)
+    if isinstance(v0.camera, PerspectiveCamera):    # like the capture's cameras, around its geometry's centre
+        kw = dict(camera="perspective", fov=v0.camera.fov, target=centre,
+                  max_zenith=60 if isinstance(full.surface, PlanarSample) else 90)
+    else:
+        kw = dict(camera="rectified", max_zenith=60)
+    views = collocated_views(int(num), dist, method=kind, resolution=v0.resolution, power=light.power,
+                             falloff=light.falloff, **kw)
     return views, list(range(len(views)))
 
 
@@ -107,7 +116,8 @@ def run(a) -> int:
                           "pixels": int(scores.pixels[i])} for i in range(len(cands))]
         plot_candidates(out / "candidates.png", cands,
                         scores.mi.numpy() if a.method == "mi" else scores.mean_std.numpy(),
-                        rec.indices, f"{len(cands)} candidates, {a.k} recommended ({a.method})")
+                        rec.indices, f"{len(cands)} candidates, {a.k} recommended ({a.method})",
+                        centre=full.surface.center)
     write_json(out / "recommend.json", result)
     what = "view" if a.candidates == "heldout" else "candidate"
     print(f"recommended ({a.method}, from {len(cands)} candidates): "
