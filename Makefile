@@ -12,8 +12,9 @@ setup:
 
 demo: setup
 	@if [ -d $(SHARED)/captures/card_blue ]; then \
-	  $(BB) demo --out out/demo/story --capture $(SHARED)/captures/card_blue; \
-	else echo "demo: $(SHARED) not found: the report leaves out the real-capture section"; \
+	  $(BB) demo --out out/demo/story --capture $(SHARED)/captures/card_blue \
+	    --mesh $(SHARED)/psdr_assets/bunny_low.obj --mesh-up y; \
+	else echo "demo: $(SHARED) not found: the report leaves out the real-capture section, and shows the bowl"; \
 	  $(BB) demo --out out/demo/story; fi
 
 test: setup

@@ -7,7 +7,9 @@
 5. guide: a few rounds of guided capture (Algorithm 1) against the low-discrepancy baseline, over
    ``seeds`` seeds (capture noise and initial views), with the spread and one sentence of conclusion;
 6. real photos (``capture=PATH``): fit some views of a real capture, hold out the rest, compare the
-   predicted std with the actual error there and rank the held-out views by mutual information.
+   predicted std with the actual error there and rank the held-out views by mutual information;
+7. an object (``mesh``: the bowl by default, a shape name, a mesh file, or ``"none"``): the same on a mesh
+   (:mod:`bayes_brdf.demo_mesh`): texture-space std with the unseen texels, novel views, recommended cameras.
 
 Everything lands in ``out`` with ``report.html`` (self-contained) on top; every map in it carries its
 value range, every interval claim is checked by coverage (reliability diagram) and by std vs error.
@@ -37,7 +39,8 @@ from .uncertainty import correlations, coverage, image_std, predictive_cdf
 
 DEFAULTS = dict(material="wood", resolution=32, views=5, candidates=300, novel=4, k=3, rounds=2, steps=1500,
                 guided_steps=None, seeds=3, particles=20, noise=0.005, radius=10.0, seed=0, capture=None,
-                capture_resolution=32)
+                capture_resolution=32, mesh="bowl", mesh_up="z", mesh_texels=None, mesh_resolution=None, mesh_views=8,
+                mesh_steps=None, mesh_candidates=200)   # mesh texels and pixels: 2 x resolution; steps: min(600, steps)
 LEVELS = (0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9)
 
 
@@ -88,7 +91,7 @@ def _guided(cfg, truth, cands, novel, ev, out, progress, log):
             c["std"].append([e for _, e in res.series("mean_image_std")])
             c["rows"] += [[label, seed + s, r["views"], r["metrics"]["novel_error"], r["metrics"]["mean_image_std"],
                            r["metrics"]["param_error"]["roughness"]] for r in res.rounds]
-        log(f"demo: 5/6 guided and baseline rounds, seed {s + 1} of {cfg['seeds']} done")
+        log(f"demo: section 5: guided and baseline rounds, seed {s + 1} of {cfg['seeds']} done")
     return curves, unconverged
 
 
@@ -138,7 +141,7 @@ def _real_capture(rep, path, out: Path, cfg, progress, log) -> dict:
     scores = score_views(post, held.views, full.surface, seed=int(cfg["seed"]))
     secs = time.perf_counter() - t
     name = Path(path).resolve().name
-    log(f"demo: 6/6 real capture '{name}': fitted views {fit_idx}, held out {held_idx}: coverage 50% "
+    log(f"demo: section 6: real capture '{name}': fitted views {fit_idx}, held out {held_idx}: coverage 50% "
         f"{h['coverage']['50']:.2f}, 90% {h['coverage']['90']:.2f}, Spearman {h['spearman']:.2f} ({secs:.0f} s)")
     rep.heading(f"6. Real photos: '{name}' ({len(full)} flash photos at {R}x{R})")
     rep.text(f"Fitted on photos {fit_idx}, held out {held_idx}, at {R}x{R} with the defaults. The noise level was "
@@ -197,7 +200,7 @@ def run(out, *, progress: bool = False, log=print, **overrides) -> Path:
         p = out / "capture" / f"photo_{i}.png"
         write_png(p, im.clamp(0, 1).numpy())
         inputs.append((p, f"photo {i} (flash at {tuple(round(c, 1) for c in obs.views[i].camera.position)})"))
-    log(f"demo: 1/6 captured {len(obs)} flash photos of '{cfg['material']}' at {R}x{R}")
+    log(f"demo: section 1: captured {len(obs)} flash photos of '{cfg['material']}' at {R}x{R}")
 
     # 2. fit
     t = time.perf_counter()
@@ -218,7 +221,7 @@ def run(out, *, progress: bool = False, log=print, **overrides) -> Path:
          figures.map_panel(m.roughness, "MAP roughness", vmax=1.0),
          figures.map_panel(std["roughness"], "posterior std: roughness", vmax=vr),
          figures.map_panel(err_r, "|MAP - truth|: roughness", vmax=vr)]])
-    log(f"demo: 2/6 sampled the posterior ({post.num_particles} particles, {cfg['steps']} steps) in "
+    log(f"demo: section 2: sampled the posterior ({post.num_particles} particles, {cfg['steps']} steps) in "
         f"{times['fit']:.0f} s; mean std: albedo {float(std['albedo'].mean()):.3f}, "
         f"roughness {float(std['roughness'].mean()):.3f}; convergence checks: {_verdict(post)}")
 
@@ -244,7 +247,7 @@ def run(out, *, progress: bool = False, log=print, **overrides) -> Path:
     sve_png = figures.std_vs_error(out / "novel" / "std_vs_error.png", [
         (sd, err, "novel views: pixels"), (std["roughness"], err_r, "roughness: texels")])
     times["novel"] = time.perf_counter() - t
-    log(f"demo: 3/6 novel views: predicted std vs actual error Pearson {corr['pearson']:.2f}, "
+    log(f"demo: section 3: novel views: predicted std vs actual error Pearson {corr['pearson']:.2f}, "
         f"Spearman {corr['spearman']:.2f}; 90 % intervals cover {cov_img['90']:.2f} of the novel photos' pixels")
 
     # 4. recommend
@@ -254,7 +257,7 @@ def run(out, *, progress: bool = False, log=print, **overrides) -> Path:
     times["recommend"] = time.perf_counter() - t
     cand_png = out / "recommend" / "candidates.png"
     figures.plot_candidates(cand_png, cands, scores.mi.numpy(), rec.indices, f"{len(cands)} candidate flash views, MI")
-    log(f"demo: 4/6 scored {len(cands)} candidate views in {scores.seconds:.1f} s; recommended "
+    log(f"demo: section 4: scored {len(cands)} candidate views in {scores.seconds:.1f} s; recommended "
         + ", ".join(f"{tuple(round(c, 1) for c in cands[i].camera.position)}" for i in rec.indices))
 
     # 5. guided rounds vs baseline, over seeds
@@ -270,7 +273,7 @@ def run(out, *, progress: bool = False, log=print, **overrides) -> Path:
     std_png = figures.bands(out / "guided" / "mean_image_std.png", _mean_sd(curves, "std"), xlabel="number of views",
                             ylabel="mean image-space std", title=f"mean ± sd over {cfg['seeds']} seeds")
     conclusion = _conclusion(curves) if int(cfg["rounds"]) > 0 else "No guided rounds were run (--rounds 0)."
-    log(f"demo: 5/6 {cfg['rounds']} guided rounds of {cfg['k']} views and the baseline, {cfg['seeds']} seeds, in "
+    log(f"demo: section 5: {cfg['rounds']} guided rounds of {cfg['k']} views and the baseline, {cfg['seeds']} seeds, in "
         f"{times['guided']:.0f} s. {conclusion}")
 
     # report
@@ -324,6 +327,11 @@ def run(out, *, progress: bool = False, log=print, **overrides) -> Path:
     if cfg.get("capture"):
         real = _real_capture(rep, cfg["capture"], out, cfg, progress, log)
         times["real_capture"] = real["seconds"]
+    obj = None
+    if cfg.get("mesh") and cfg["mesh"] != "none":
+        from .demo_mesh import mesh_section
+        obj = mesh_section(rep, out, cfg, progress, log)
+        times["mesh"] = obj["seconds"]
     times["total"] = time.perf_counter() - t_all
     rep.heading("Timings")
     rep.text(f"This demo took {times['total']:.0f} s on this machine ({_machine()}).")
@@ -338,7 +346,7 @@ def run(out, *, progress: bool = False, log=print, **overrides) -> Path:
                                               "recommended": rec.indices, "conclusion": conclusion,
                                               "guided": {lab: {"views": c["views"], "novel_error": c["runs"]}
                                                          for lab, c in curves.items()},
-                                              "real_capture": real},
+                                              "real_capture": real, "mesh": obj},
                                              indent=1, default=float))
     return rep.write(out / "report.html")
 

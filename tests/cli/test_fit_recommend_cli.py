@@ -162,6 +162,9 @@ def test_demo_writes_a_self_contained_report(tmp_path, capsys):
     assert "reliability" in html and "std against the actual error" in html and "Conclusion:" in html
     assert set(d["coverage_novel"]) == {"10", "20", "30", "40", "50", "60", "70", "80", "90"}
     assert f"This demo took {d['seconds']['total']:.0f} s" in html
+    # the object section: the bowl, its unseen texels, the recommended cameras
+    assert "An object: the bowl" in html and "no photo sees" in html
+    assert 0.2 < d["mesh"]["seen_fraction"] < 1 and len(d["mesh"]["recommended"]) == 2
     assert main(["demo", "--material", "cheese", "--out", str(out)]) == 2
 
 
