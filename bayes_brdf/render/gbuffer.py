@@ -173,6 +173,17 @@ class GBuffer:
                if isinstance(getattr(src, f.name), Tensor)}
         return replace(src, aligned=False, gathered=True, **out)
 
+    def pixels_slice(self, start: int, stop: int) -> "GBuffer":
+        """Pixels ``start:stop`` of a gathered ``1 x K`` G-buffer (:meth:`gather`), e.g. those of some of its views."""
+        if not self.gathered:
+            raise InputError("pixels_slice needs a gathered G-buffer", fix="call gather() first")
+        out = {}
+        for f in fields(self):
+            t = getattr(self, f.name)
+            if isinstance(t, Tensor):
+                out[f.name] = t[:, :, start:stop] if f.name == "uv" else t[..., start:stop]
+        return replace(self, **out)
+
     def texel_index(self, resolution) -> Tensor:
         """Footprint: flat index ``[V, H, W]`` of the nearest texel of an ``(R_h, R_w)`` map (-1 if invalid).
 

@@ -170,12 +170,48 @@ def shade_chunks(maps: SVBRDF, g: GBuffer, *, ks_factor: bool = True, eps: float
     For consumers that reduce each chunk (image-space std, view scoring) so the full
     ``[n, V, ...]`` stack never exists; the geometry cached on ``g`` is reused across calls.
     """
+    if _sparse_images(maps, g, backend):
+        yield from _compact_chunks(maps, g, ks_factor, eps, chunk_views, backend)
+        return
     n, g, chunks = _chunks(maps, g, eps, chunk_views, texel_space=backend != "eager")
     V, (h, w) = g.num_views, g.resolution
     kernel = fused.get_kernel(backend, n * V * h * w)
     for s, e, args, tp in chunks:
         out = kernel(*args, ks_factor) if tp is None else kernel(*args, ks_factor, taps=tp)
         yield s, e, out.expand(n, e - s, 3, h, w)
+
+
+def _sparse_images(maps: SVBRDF, g: GBuffer, backend: str) -> bool:
+    """Whether images of ``g`` are shaded on its valid pixels only (compacted, through the native texel gather):
+    views whose pixels are not texels (a mesh, perspective views of the plane), on the CPU kernel's terms."""
+    if backend == "eager" or g.aligned or g.gathered or g.light_dir.shape[1] > native.MAX_LIGHTS:
+        return False
+    nrm = maps.normal
+    return nrm.dim() == 3 and not nrm.requires_grad and native.available(maps.albedo) and \
+        _texel_grid(maps, compacted(g)[0]) is not None
+
+
+def _compact_chunks(maps: SVBRDF, g: GBuffer, ks_factor: bool, eps: float, chunk_views: int | None, backend: str):
+    """:func:`shade_chunks` on the valid pixels of ``g`` (compacted), put back into images (0 off the surface)."""
+    n = maps.num_particles or 1
+    c, sel = compacted(g)
+    V, (h, w) = g.num_views, g.resolution
+    counts = sel.reshape(V, -1).sum(1)
+    offsets = [0] + torch.cumsum(counts, 0).tolist()
+    if chunk_views is None:
+        chunk_views = max(1, CHUNK_ELEMENTS // max(1, n * h * w * 3 * g.light_dir.shape[1]))
+    memo = c.__dict__.setdefault("_slices", {})
+    for s in range(0, V, chunk_views):
+        e = min(V, s + chunk_views)
+        a, b = offsets[s], offsets[e]
+        img = torch.zeros(n, e - s, h, w, 3, dtype=maps.albedo.dtype, device=maps.albedo.device)
+        if b > a:
+            cc = memo.get((a, b))
+            if cc is None:
+                cc = memo[(a, b)] = c.pixels_slice(a, b)
+            (_, _, out), = shade_chunks(maps, cc, ks_factor=ks_factor, eps=eps, backend=backend)
+            img[:, sel[s:e]] = out[:, 0, :, 0, :].transpose(1, 2)
+        yield s, e, img.permute(0, 1, 4, 2, 3)
 
 
 class Renderer:
