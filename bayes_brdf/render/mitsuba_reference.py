@@ -56,7 +56,6 @@ from __future__ import annotations
 
 import math
 import threading
-from collections import OrderedDict
 
 import numpy as np
 import torch
@@ -67,6 +66,7 @@ from ..mitsuba_env import mitsuba_variant
 from .cameras import PerspectiveCamera
 from .lights import PointLight
 from .maps import SVBRDF
+from .raycast import MeshSceneCache, mitsuba_mesh
 from .views import View
 
 #: the name the reference BSDF is registered under (per Mitsuba variant)
@@ -213,14 +213,7 @@ class ReferenceScene:
                              "raw": True, "filter_type": "bilinear", "wrap_mode": "clamp"}
             bsdf = mi.load_dict({"type": BSDF_NAME, "albedo": one(3), "roughness": one(1), "specular": one(3),
                                  "normal": one(3)})
-            m = mi.Mesh(mesh.name or "mesh", mesh.num_vertices, mesh.num_faces, has_vertex_normals=True,
-                        has_vertex_texcoords=True)
-            p = mi.traverse(m)
-            p["vertex_positions"] = mi.Float(np.ascontiguousarray(mesh.vertices, np.float32).ravel())
-            p["vertex_normals"] = mi.Float(np.ascontiguousarray(mesh.normals, np.float32).ravel())
-            p["vertex_texcoords"] = mi.Float(np.ascontiguousarray(mesh.uv, np.float32).ravel())
-            p["faces"] = mi.UInt(np.ascontiguousarray(mesh.faces, np.uint32).ravel())
-            p.update()
+            m = mitsuba_mesh(mesh, mi)
             m.set_bsdf(bsdf)
             self.bsdf = bsdf
             self.textures = {name: getattr(bsdf, "normalmap" if name == "normal" else name) for name in _MAPS}
@@ -298,27 +291,8 @@ class ReferenceScene:
         return out
 
 
-class _Cache:
-    """Reference scenes by (mesh digest, variant), a few, least recently used out first."""
-
-    def __init__(self, max_entries: int = 4):
-        self._store: OrderedDict = OrderedDict()
-        self.max_entries = max_entries
-
-    def get(self, mesh, variant: str) -> ReferenceScene:
-        key = (mesh.digest, variant)
-        if key in self._store:
-            self._store.move_to_end(key)
-            return self._store[key]
-        rs = ReferenceScene(mesh, variant)
-        self._store[key] = rs
-        while len(self._store) > self.max_entries:
-            self._store.popitem(last=False)
-        return rs
-
-
-#: the reference scenes built so far
-SCENES = _Cache()
+#: the reference scenes built so far, by mesh and variant
+SCENES = MeshSceneCache(ReferenceScene, max_entries=4)
 
 
 def _check(maps: SVBRDF, views) -> SVBRDF:

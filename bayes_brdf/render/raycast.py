@@ -31,34 +31,38 @@ from .hits import SurfaceHits
 #: shadow-ray offset and shortening, relative to the mesh's bounding radius
 SHADOW_EPS = 1e-4
 
-_LOCK = threading.Lock()
+class MeshSceneCache:
+    """Mitsuba scenes built from meshes, kept by (mesh digest, variant): ``get(mesh, variant, *args)`` returns the
+    kept one or ``build(mesh, variant, *args)``; a few at most, the least recently used out first. Thread-safe.
 
+    Example:
+        >>> cache = MeshSceneCache(lambda mesh, variant, tag: (mesh, tag), max_entries=2)
+        >>> from bayes_brdf.render.mesh import Mesh
+        >>> cache.get(Mesh.plane(), "v", 1) is cache.get(Mesh.plane(), "v", 2)
+        True
+    """
 
-class _SceneCache:
-    """Mitsuba scenes of meshes, by mesh digest and variant (a few, least recently used out first)."""
-
-    def __init__(self, max_entries: int = 8):
+    def __init__(self, build, max_entries: int = 8):
+        self._build, self.max_entries = build, max_entries
         self._store: OrderedDict = OrderedDict()
-        self.max_entries = max_entries
+        self._lock = threading.Lock()
 
-    def get(self, mesh, mi, variant: str):
+    def get(self, mesh, variant: str, *args):
         key = (mesh.digest, variant)
-        with _LOCK:
+        with self._lock:
             if key in self._store:
                 self._store.move_to_end(key)
                 return self._store[key]
-            sc = _build_scene(mesh, mi)
+            sc = self._build(mesh, variant, *args)
             self._store[key] = sc
             while len(self._store) > self.max_entries:
                 self._store.popitem(last=False)
             return sc
 
 
-#: the one cache of Mitsuba scenes
-SCENES = _SceneCache()
-
-
-def _build_scene(mesh, mi):
+def mitsuba_mesh(mesh, mi):
+    """The Mitsuba ``Mesh`` of ``mesh`` (positions, vertex normals, uv and faces as they are, float32), in the
+    active variant of ``mi``."""
     m = mi.Mesh(mesh.name or "mesh", mesh.num_vertices, mesh.num_faces, has_vertex_normals=True,
                 has_vertex_texcoords=True)
     p = mi.traverse(m)
@@ -67,7 +71,11 @@ def _build_scene(mesh, mi):
     p["vertex_texcoords"] = mi.Float(np.ascontiguousarray(mesh.uv, np.float32).ravel())
     p["faces"] = mi.UInt(np.ascontiguousarray(mesh.faces, np.uint32).ravel())
     p.update()
-    return mi.load_dict({"type": "scene", "mesh": m})
+    return m
+
+
+def _build_scene(mesh, variant: str, mi):
+    return mi.load_dict({"type": "scene", "mesh": mitsuba_mesh(mesh, mi)})
 
 
 def _rays(cameras) -> tuple[Tensor, Tensor]:
@@ -81,6 +89,10 @@ def _rays(cameras) -> tuple[Tensor, Tensor]:
         os_.append(o)
         ds.append(d)
     return torch.stack(os_), torch.stack(ds)
+
+
+#: the Mitsuba scenes of the meshes ray cast so far
+SCENES = MeshSceneCache(_build_scene)
 
 
 def _vec(mi, a: np.ndarray, cls):
@@ -110,7 +122,7 @@ def intersect(mesh, cameras) -> SurfaceHits:
     n = h * w
     with mitsuba_variant() as mi:
         import drjit as dr
-        scene = SCENES.get(mesh, mi, mi.variant())
+        scene = SCENES.get(mesh, mi.variant(), mi)
         org = o[:, :, None].expand(V, 3, n).permute(1, 0, 2).reshape(3, -1).numpy()
         dirs = d.reshape(V, 3, n).permute(1, 0, 2).reshape(3, -1).numpy()
         ray = mi.Ray3f(_vec(mi, org, mi.Point3f), _vec(mi, dirs, mi.Vector3f))
@@ -158,7 +170,7 @@ def occluded(mesh, hits: SurfaceHits, light_positions: Tensor) -> Tensor:
     eps = SHADOW_EPS * mesh.radius
     with mitsuba_variant() as mi:
         import drjit as dr
-        scene = SCENES.get(mesh, mi, mi.variant())
+        scene = SCENES.get(mesh, mi.variant(), mi)
         p, nrm = _vec(mi, flat(hits.position), mi.Point3f), _vec(mi, flat(ng), mi.Vector3f)
         vi = mi.UInt32(view.astype(np.uint32))
         blocked = []
