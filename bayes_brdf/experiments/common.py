@@ -1,6 +1,7 @@
 """Shared pieces of the experiments: synthetic problems, fitting, JSON and figures."""
 from __future__ import annotations
 
+import functools
 import json
 import logging
 import math
@@ -13,6 +14,7 @@ import torch
 from ..inference import infer
 from ..models.material import per_texel
 from ..observations import Observations
+from ..errors import InputError
 from ..render.shade import render
 from ..render.surface import PlanarSample
 from ..render.views import collocated_views
@@ -22,6 +24,62 @@ SURFACE = PlanarSample(2.0)
 #: the noise scale sigma_err of Eq. 2 the paper's figures use, pinned for the (noiseless) figure problems:
 #: the model default ``sigma = "auto"`` would infer the noise level, which on noiseless renders is its floor
 PAPER_SIGMA = 0.01
+
+
+#: ``../shared/data`` beside the repository (the Stanford bunny of ``surface="bunny"`` lives there)
+SHARED_DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data"
+#: the ``surface`` settings of the experiments that have one: the planar sample or a mesh
+SURFACES = ("plane", "bowl", "sphere", "block", "bunny")
+#: cameras on a mesh: at this many times ``mesh.radius`` from ``mesh.center`` (with ``MESH_FOV`` the
+#: bounding sphere just fills the image), flash power ``MESH_POWER * distance^2`` (a radiance like the plane's)
+MESH_DISTANCE, MESH_FOV, MESH_POWER = 2.6, 45.0, 1.2
+
+
+def scene_surface(spec: str = "plane"):
+    """The scene an experiment photographs: ``"plane"`` (:data:`SURFACE`, the planar sample), a built-in mesh
+    (``"bowl"``, ``"sphere"``, ``"block"``), ``"bunny"`` (the Stanford bunny of ``../shared/data``, y up, with
+    its xatlas atlas) or the path of a mesh file (OBJ/PLY/GLB, z up, its own unit).
+
+    Example:
+        >>> scene_surface("plane") is SURFACE
+        True
+        >>> scene_surface("bowl").name
+        'bowl'
+    """
+    spec = str(spec)
+    if spec == "plane":
+        return SURFACE
+    return _mesh(spec)
+
+
+@functools.lru_cache(maxsize=4)
+def _mesh(spec: str):
+    from ..render.mesh import Mesh
+
+    if spec in ("bowl", "sphere", "block"):
+        return {"bowl": Mesh.bowl, "sphere": Mesh.sphere, "block": Mesh.block_on_plane}[spec]()
+    if spec == "bunny":
+        path = SHARED_DATA / "psdr_assets" / "bunny_low.obj"
+        if not path.is_file():
+            raise InputError("the bunny mesh (surface=bunny) is not there", where=str(path),
+                             fix="put ../shared/data beside the repository, or use surface=bowl (built in)")
+        return Mesh.load(path, up="y")
+    if Path(spec).suffix.lower() in (".obj", ".ply", ".glb", ".gltf") and Path(spec).is_file():
+        return Mesh.load(spec)
+    raise InputError(f"unknown surface {spec!r}", fix=f"use one of {', '.join(SURFACES)} or a mesh file path")
+
+
+def is_mesh(surface) -> bool:
+    """Whether ``surface`` is a mesh (not the planar sample)."""
+    return not isinstance(surface, PlanarSample)
+
+
+def mesh_rig(mesh, resolution: int) -> tuple[float, dict]:
+    """``(distance, view keywords)`` of the flash cameras around ``mesh``: perspective, aimed at its centre from
+    :data:`MESH_DISTANCE` times its radius, ``resolution^2`` pixels, power by the square of the distance."""
+    dist = MESH_DISTANCE * float(mesh.radius)
+    return dist, dict(camera="perspective", target=tuple(mesh.center), resolution=int(resolution), fov=MESH_FOV,
+                      power=MESH_POWER * dist ** 2)
 
 
 def say(msg: str, *args) -> None:

@@ -77,7 +77,12 @@ class GBuffer:
                              fix="shade views of different resolutions in separate calls")
         h, w = res.pop()
         L = max(len(v.lights) for v in views)
-        hits = surface.intersect([v.camera for v in views])
+        cams = [v.camera for v in views]
+        uniq = list(dict.fromkeys(cams))               # a light stage: many views share a camera, cast its rays once
+        hits = surface.intersect(uniq)
+        if len(uniq) < len(cams):
+            where = {c: i for i, c in enumerate(uniq)}
+            hits = hits.select([where[c] for c in cams])
         lpos = torch.zeros(len(views), L, 3, dtype=torch.float64)
         for k, v in enumerate(views):
             lpos[k, :len(v.lights)] = torch.tensor([l.position for l in v.lights], dtype=torch.float64)

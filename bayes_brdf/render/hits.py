@@ -55,6 +55,28 @@ class SurfaceHits:
     def num_views(self) -> int:
         return self.position.shape[0]
 
+    def select(self, idx) -> "SurfaceHits":
+        """The hits of cameras ``idx`` (a list of indices, repeats allowed: views that share a camera).
+
+        Example:
+            >>> from bayes_brdf.render import PlanarSample, RectifiedCamera
+            >>> h = PlanarSample(2.0).intersect([RectifiedCamera((0, 0, 5.0), 4)]).select([0, 0, 0])
+            >>> h.num_views, h.normal.stride(0)      # a flat frame stays one vector
+            (3, 0)
+        """
+        t = torch.as_tensor(idx, dtype=torch.long)
+
+        def pick(x):
+            if x is None:
+                return None
+            if x.dim() == 4 and x.stride(-1) == 0 and x.stride(-2) == 0 and (x.shape[0] == 1 or x.stride(0) == 0):
+                return x[:1].expand(len(t), *x.shape[1:])  # an expanded constant (the plane's frame): no copy
+            return x[t]
+        return SurfaceHits(position=pick(self.position), normal=pick(self.normal), tangent=pick(self.tangent),
+                           bitangent=pick(self.bitangent), uv=pick(self.uv), mask=pick(self.mask),
+                           align_corners=self.align_corners, aligned=self.aligned,
+                           geometric_normal=pick(self.geometric_normal))
+
     @property
     def resolution(self) -> tuple[int, int]:
         return tuple(self.position.shape[-2:])

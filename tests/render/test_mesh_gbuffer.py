@@ -103,3 +103,18 @@ def test_mesh_gbuffers_are_cached_and_rectified_cameras_refused():
     assert GBUFFERS.get(views, mesh) is GBUFFERS.get(views, Mesh.sphere(rings=16, segments=32))
     with pytest.raises(InputError, match="cannot look at a mesh"):
         GBuffer.build([View.collocated(RectifiedCamera((0, 0, 3.0), 8))], mesh)
+
+
+def test_light_stage_views_share_their_cameras_rays():
+    """Every camera with every light: the rays of a camera are cast once; each view gets its own light's
+    shadows, as when built alone."""
+    from bayes_brdf.render import hemisphere_directions, light_stage_views
+    mesh = Mesh.block_on_plane()
+    views = light_stage_views(hemisphere_directions(2), hemisphere_directions(3, "sobol", max_zenith=75), 4.0, 5.0,
+                              resolution=24)
+    g = GBuffer.build(views, mesh, dtype=torch.float64)
+    for k in (0, 4):
+        one = GBuffer.build([views[k]], mesh, dtype=torch.float64)
+        for f in ("position", "normal", "light_scale", "uv"):
+            torch.testing.assert_close(getattr(g, f)[k:k + 1], getattr(one, f))
+    assert not torch.equal(g.light_scale[0], g.light_scale[1])             # same camera, other light
