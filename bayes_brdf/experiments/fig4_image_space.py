@@ -21,6 +21,16 @@ that a collocated capture never sees). For each we render the truth and every es
 absolute error (mean over RGB) and the image-space std of the particles' renders (Eq. 11, mean over RGB), and
 report Pearson and Spearman correlations between std and error over the pixels on the sample, per view and
 averaged over the two views.
+
+On a mesh (``surface``: ``"bowl"``, ``"sphere"``, ``"block"``, ``"bunny"`` or a mesh file; presets ``mesh_small``
+and ``mesh``) the same material covers the object through its uv; the ``views`` observations are collocated
+flash photos from perspective cameras around ``mesh.center`` (:func:`~.common.mesh_rig`: 2.6 radii away, zenith
+within ``MESH_ZENITH``, Sobol directions by ``seed``, ``image_resolution^2`` pixels; shadows included). Texels no
+photo sees keep their prior. The two novel views are ``below`` (camera and flash together at 105 degrees zenith,
+under the object's equator, where no observed camera goes: it sees the underside) and ``crossed`` (camera at
+50 degrees zenith, the light at 50 degrees zenith 90 degrees of azimuth away: a collocated capture never has the
+light off the camera). Every statistic is over the pixels that see the object; ``seen_texels`` repeats the
+correlations over the pixels whose texel some photo saw.
 """
 from __future__ import annotations
 
@@ -30,16 +40,17 @@ import time
 import numpy as np
 import torch
 
-from .common import FIGURE_SAMPLER, PAPER_SIGMA, SURFACE, figure_grid, prepare, save_figure, synthetic, write_json
+from .common import (FIGURE_SAMPLER, PAPER_SIGMA, SURFACE, figure_grid, is_mesh, mesh_rig, prepare, save_figure,
+                     scene_surface, synthetic, write_json)
 from ..inference import infer
 from ..models.data import ModelData
 from ..models.material import per_texel
 from ..potential import Potential
-from ..render.cameras import RectifiedCamera
+from ..render.cameras import PerspectiveCamera, RectifiedCamera
 from ..render.gbuffer import GBuffer
 from ..render.lights import PointLight
 from ..render.shade import render
-from ..render.views import View
+from ..render.views import View, collocated_views
 from ..uncertainty import CMAP, correlations, image_std
 
 DESCRIPTION = "Fig. 4: image-space std (Eq. 11) vs novel-view errors of four point estimates (Adam x2, SGD, ours)"
@@ -47,11 +58,22 @@ DESCRIPTION = "Fig. 4: image-space std (Eq. 11) vs novel-view errors of four poi
 PRESETS = {
     "small": {"material": "wood", "resolution": 32, "views": 20, "particles": 20, "steps": 1500,
               "opt_steps": 600, "adam_lr": 0.05, "sgd_lr": 2e-4, "refine_steps": 100, "init_high": 0.9,
-              "init_low": 0.1, "noise_sigma": 0.0},
+              "init_low": 0.1, "noise_sigma": 0.0, "surface": "plane", "image_resolution": 0},
     "full": {"material": "wood", "resolution": 128, "views": 20, "particles": 20, "steps": 4000,
              "opt_steps": 2000, "adam_lr": 0.05, "sgd_lr": 2e-4, "refine_steps": 200, "init_high": 0.9,
-             "init_low": 0.1, "noise_sigma": 0.0},
+             "init_low": 0.1, "noise_sigma": 0.0, "surface": "plane", "image_resolution": 0},
+    # on a mesh (``image_resolution``: pixels per side of its perspective views, 0: twice the map resolution;
+    # the plane's rectified views are always at the map resolution). ``mesh_small``: the built-in bowl, what the
+    # test runs; ``mesh``: the Stanford bunny of ../shared/data
+    "mesh_small": {"material": "wood", "resolution": 16, "views": 10, "particles": 20, "steps": 500,
+                   "opt_steps": 300, "adam_lr": 0.05, "sgd_lr": 2e-4, "refine_steps": 50, "init_high": 0.9,
+                   "init_low": 0.1, "noise_sigma": 0.0, "surface": "bowl", "image_resolution": 32},
+    "mesh": {"material": "wood", "resolution": 32, "views": 20, "particles": 20, "steps": 1500,
+             "opt_steps": 600, "adam_lr": 0.05, "sgd_lr": 2e-4, "refine_steps": 100, "init_high": 0.9,
+             "init_low": 0.1, "noise_sigma": 0.0, "surface": "bunny", "image_resolution": 64},
 }
+#: the observed cameras on a mesh stay within this zenith angle (degrees from +z about ``mesh.center``)
+MESH_ZENITH = 80.0
 
 ESTIMATES = ("b1_adam_high", "b2_adam_low", "b3_sgd_random", "b4_ours")
 LABELS = {"b1_adam_high": "(b1) Adam, high init", "b2_adam_low": "(b2) Adam, low init",
@@ -143,6 +165,37 @@ def novel_views(resolution: int, radius: float = 3.0, power: float = 10.0) -> li
             View(RectifiedCamera(cam, resolution=resolution), (PointLight(light, power),), name="opposite")]
 
 
+def _mesh_dir(mesh, zenith: float, azimuth: float, r: float):
+    c = mesh.center
+    return tuple(a + b for a, b in zip(c, _dir(zenith, azimuth, r)))
+
+
+def mesh_novel_views(mesh, resolution: int) -> list[View]:
+    """The two novel views of a mesh (perspective, aimed at ``mesh.center`` from the observed distance; the observed
+    views are collocated within ``MESH_ZENITH``): ``below``, camera and flash together at 105 degrees zenith (under
+    the object's equator: it sees the underside, which no observed camera does), and ``crossed``, camera at
+    50 degrees zenith and the light at 50 degrees zenith 90 degrees of azimuth away."""
+    dist, kw = mesh_rig(mesh, resolution)
+    cam = lambda pos: PerspectiveCamera(pos, target=kw["target"], fov=kw["fov"], resolution=kw["resolution"])  # noqa: E731
+    below = View.collocated(cam(_mesh_dir(mesh, 105.0, 30.0, dist)), power=kw["power"], name="below")
+    crossed = View(cam(_mesh_dir(mesh, 50.0, 0.0, dist)), (PointLight(_mesh_dir(mesh, 50.0, 90.0, dist), kw["power"]),),
+                   name="crossed")
+    return [below, crossed]
+
+
+def mesh_problem(cfg: dict, mesh, seed: int):
+    """``(truth maps, Observations)`` of Fig. 4 on ``mesh``: ``views`` collocated flash photos around it."""
+    from ..guidance.acquisition import SyntheticCapture
+    from ..materials import make_material
+
+    R = int(cfg["resolution"])
+    truth = make_material(cfg["material"], R, seed=seed).to(torch.float32)
+    dist, kw = mesh_rig(mesh, int(cfg["image_resolution"]) or 2 * R)
+    vs = collocated_views(int(cfg["views"]), dist, method="sobol", max_zenith=MESH_ZENITH, seed=seed, **kw)
+    obs = SyntheticCapture(truth, mesh, noise_sigma=float(cfg["noise_sigma"]), seed=seed)(vs)
+    return truth, obs
+
+
 def _maps_of(model, values: list[dict]):
     stacked = {k: torch.stack([v[k] for v in values]) for k in values[0]}
     return model.maps(stacked)
@@ -183,14 +236,54 @@ def _overview(path, view_names, truth_r, est_r, errors, stds, vmaxes):
     return save_figure(fig, path, dpi=90, tight=True)
 
 
+def _coverage(obs, mesh, novel_gbuffer, resolution: int) -> dict:
+    """Which texels some observed photo sees (``texel_seen [R, R]``) and which novel-view pixels look at one
+    (``pixel_seen [V, H, W]``, numpy), by each pixel's nearest texel."""
+    from ..render.gbuffer import GBUFFERS
+
+    idx = GBUFFERS.get(tuple(obs.views), mesh).texel_index(resolution)
+    seen = torch.zeros(resolution * resolution, dtype=torch.bool)
+    seen[idx[idx >= 0]] = True
+    nidx = novel_gbuffer.texel_index(resolution)
+    pix = torch.where(nidx >= 0, seen[nidx.clamp_min(0)], torch.zeros_like(nidx, dtype=torch.bool))
+    return {"texel_seen": seen.reshape(resolution, resolution), "pixel_seen": pix.numpy()}
+
+
+def _texture_figure(path, truth, est, post, seen, name: str):
+    """Texture space on a mesh: true and (b4) roughness, the posterior std of roughness and albedo, with the
+    texels no photo sees (atlas gaps and hidden parts: they keep the prior) marked."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from ..uncertainty import show_map
+
+    unseen = {"no photo sees it": ~seen}
+    sd = post.std()
+    panels = [("true roughness", truth.roughness[0], 1.0, None), ("(b4) roughness", est["roughness"][0], 1.0, unseen),
+              ("posterior std: roughness", sd["roughness"][0], float(sd["roughness"].max()), unseen),
+              ("posterior std: albedo (mean RGB)", sd["albedo"].mean(0), float(sd["albedo"].mean(0).max()), unseen)]
+    fig, axes = plt.subplots(1, len(panels), figsize=(2.7 * len(panels), 3.0))
+    for ax, (lab, a, vmax, masks) in zip(axes, panels):
+        show_map(fig, ax, np.asarray(a.detach().float()), 0.0, vmax, lab, fontsize=8, masks=masks)
+    fig.suptitle(f"Fig. 4 on the {name}: texture space (the maps the posterior is over)", fontsize=9)
+    fig.tight_layout()
+    return save_figure(fig, path)
+
+
 # ------------------------------------------------------------------ the experiment
 def run(out, preset: str = "small", seed: int = 0, progress: bool = False, **overrides) -> dict:
     """Run Fig. 4 (see the module docstring); writes the PNGs and ``fig4.json`` into ``out`` and returns the numbers."""
     cfg, out = prepare(__name__, preset, overrides, out)
     t0 = time.perf_counter()
     R = int(cfg["resolution"])
-    truth, obs = synthetic(cfg["material"], R, views=int(cfg["views"]), seed=seed,
-                           noise_sigma=float(cfg["noise_sigma"]))
+    surface = scene_surface(cfg["surface"])
+    mesh = is_mesh(surface)
+    if mesh:
+        truth, obs = mesh_problem(cfg, surface, seed)
+    else:
+        truth, obs = synthetic(cfg["material"], R, views=int(cfg["views"]), seed=seed,
+                               noise_sigma=float(cfg["noise_sigma"]))
     model = per_texel(R, specular=truth.specular, normals=truth.normal, sigma=PAPER_SIGMA)
 
     # SPOS, started from prior draws kept off the bounds (where the logit saturates)
@@ -207,15 +300,17 @@ def run(out, preset: str = "small", seed: int = 0, progress: bool = False, **ove
     est, energies = point_estimates(post, cfg, seed)
     t_point = time.perf_counter() - t1
 
-    views = novel_views(R)
+    views = mesh_novel_views(surface, obs.views[0].resolution[0]) if mesh else novel_views(R)
     names = [v.name for v in views]
     with torch.no_grad():
-        mask = GBuffer.build(views, SURFACE).mask.numpy()                       # [V, H, W]
-        truth_r = render(truth, views, SURFACE)[0].numpy()                      # [V, H, W, 3]
-        est_r_all = render(_maps_of(model, [est[e] for e in ESTIMATES]), views, SURFACE).numpy()
-        std = image_std(post, views).mean(-1).numpy()                           # [V, H, W]
+        gb = GBuffer.build(views, surface)
+        mask = gb.mask.numpy()                                                  # [V, H, W]
+        truth_r = render(truth, views, surface)[0].numpy()                      # [V, H, W, 3]
+        est_r_all = render(_maps_of(model, [est[e] for e in ESTIMATES]), views, surface).numpy()
+        std = (image_std(post, views, surface) if mesh else image_std(post, views)).mean(-1).numpy()  # [V, H, W]
     est_r = {e: est_r_all[i] for i, e in enumerate(ESTIMATES)}
     errors = {e: np.abs(est_r[e] - truth_r).mean(-1) for e in ESTIMATES}
+    coverage = _coverage(obs, surface, gb, R) if mesh else None
 
     per_view = {}
     for v, name in enumerate(names):
@@ -224,26 +319,55 @@ def run(out, preset: str = "small", seed: int = 0, progress: bool = False, **ove
         for e in ESTIMATES:
             c = correlations(torch.from_numpy(std[v][m]), torch.from_numpy(errors[e][v][m]))
             row[e] = {"pearson": c["pearson"], "spearman": c["spearman"], "mae": float(errors[e][v][m].mean())}
+        if coverage is not None:   # the same over the object's pixels whose texel some photo saw
+            ms = m & coverage["pixel_seen"][v]
+            row["object_pixels"] = int(m.sum())
+            row["unseen_texel_pixels"] = int((m & ~coverage["pixel_seen"][v]).sum())
+            row["std_mean_seen_texels"] = float(std[v][ms].mean()) if ms.any() else float("nan")
+            row["std_mean_unseen_texels"] = (float(std[v][m & ~ms].mean()) if (m & ~ms).any() else float("nan"))
+            row["seen_texels"] = {e: correlations(torch.from_numpy(std[v][ms]), torch.from_numpy(errors[e][v][ms]))
+                                  for e in ESTIMATES}
         per_view[name] = row
     avg = {e: {k: float(np.mean([per_view[n][e][k] for n in names])) for k in ("pearson", "spearman", "mae")}
            for e in ESTIMATES}
     param_err = {e: {"albedo_mae": float((est[e]["albedo"] - truth.albedo).abs().mean()),
                      "roughness_mae": float((est[e]["roughness"] - truth.roughness).abs().mean())} for e in ESTIMATES}
+    if coverage is not None:   # on a mesh the texels no photo sees keep the prior: the errors over the seen ones
+        seen = coverage["texel_seen"]
+        for e in ESTIMATES:
+            param_err[e]["albedo_mae_seen"] = float((est[e]["albedo"] - truth.albedo).abs().mean(0)[seen].mean())
+            param_err[e]["roughness_mae_seen"] = float((est[e]["roughness"] - truth.roughness).abs()[0][seen].mean())
 
     vmaxes = [float(max(np.percentile(np.concatenate([std[v][mask[v]]] + [errors[e][v][mask[v]] for e in ESTIMATES]),
                                       99), 1e-9)) for v in range(len(names))]
+    if mesh:   # off the object: no value (drawn blank), never read as a 0
+        std = np.where(mask, std, np.nan)
+        errors = {e: np.where(mask, errors[e], np.nan) for e in ESTIMATES}
     files = [_overview(out / "fig4.png", names, truth_r, est_r, errors, std, vmaxes)]
+    where = f" on the {surface.name} (blank: off the object)" if mesh else ""
     for v, name in enumerate(names):
         panels = [("std (Eq. 11)", std[v])] + [(f"|error| {LABELS[e]}", errors[e][v]) for e in ESTIMATES]
         files.append(figure_grid(out / f"fig4_{name}.png", panels, ncols=5, vmax=vmaxes[v],
-                                 title=f"Fig. 4, novel view '{name}': image-space std and |error| of (b1)-(b4), "
-                                       f"one range"))
+                                 title=f"Fig. 4, novel view '{name}'{where}: image-space std and |error| of "
+                                       f"(b1)-(b4), one range"))
+    if mesh:
+        files.append(_texture_figure(out / "fig4_texture.png", truth, est["b4_ours"], post, coverage["texel_seen"],
+                                     surface.name))
 
     summary = {"pearson": {e: round(avg[e]["pearson"], 3) for e in ESTIMATES},
                "spearman": {e: round(avg[e]["spearman"], 3) for e in ESTIMATES},
                "all_positive": bool(all(avg[e]["pearson"] > 0 and avg[e]["spearman"] > 0 for e in ESTIMATES)),
                "seconds": round(time.perf_counter() - t0, 1)}
-    res = {"experiment": "fig4", "preset": preset, "seed": seed, "config": cfg, "novel_views": names,
+    extra = {}
+    if mesh:
+        extra = {"surface": {"name": surface.name, "faces": surface.num_faces, "center": list(surface.center),
+                             "radius": surface.radius},
+                 "texels_seen_fraction": float(coverage["texel_seen"].float().mean()),
+                 "average_seen_texels": {e: {k: float(np.mean([per_view[n]["seen_texels"][e][k] for n in names]))
+                                             for k in ("pearson", "spearman")} for e in ESTIMATES}}
+        summary["mae"] = {e: float(avg[e]["mae"]) for e in ESTIMATES}
+        summary["texels_seen_fraction"] = round(extra["texels_seen_fraction"], 3)
+    res = {"experiment": "fig4", "preset": preset, "seed": seed, "config": cfg, "novel_views": names, **extra,
            "per_view": per_view, "average": avg, "energies": energies, "parameter_error": param_err,
            "posterior_std": {"albedo": float(post.std("albedo").mean()),
                              "roughness": float(post.std("roughness").mean())},

@@ -14,6 +14,14 @@ the full preset, seed 0: with the model's observation noise in the score (``nois
 guided views went to grazing mirror configurations (roughness learnt well, albedo badly) and the guided
 novel-view error was 1.18x the baseline's in the light stage; noise-free it is lower than the baseline's.
 
+On a mesh (``surface``: ``"bowl"``, ``"sphere"``, ``"block"``, ``"bunny"`` or a mesh file; presets ``mesh_small``
+and ``mesh``) the material covers the object through its uv and every camera is perspective, aimed at
+``mesh.center`` from 2.6 radii (:func:`~.common.mesh_rig`, ``image_resolution^2`` pixels), within
+``MESH_ZENITH`` of +z (the object is seen from the side too): collocated candidates and novel views as above;
+in the light stage the cameras sit on that sphere and the lights on one ``LIGHT_DISTANCE`` times larger (power by
+the square of the distance, so the object is as bright as under the flash). The low-discrepancy directions of
+the baseline are measured from ``mesh.center``; the novel-view metrics count the pixels that see the object.
+
 At every round, both methods' posteriors are measured on held-out novel views (same views for both): the
 rendering error of the MAP estimate and the mean image-space std (Eq. 11). Numbers are averaged over
 ``seeds`` runs; the figure shows both methods against the number of views, one plot per setting and metric.
@@ -21,6 +29,7 @@ rendering error of the MAP estimate and the mean image-space std (Eq. 11). Numbe
 from __future__ import annotations
 
 import statistics
+import time
 from pathlib import Path
 
 import torch
@@ -30,7 +39,8 @@ from ..guidance.recommend import low_discrepancy
 from ..guidance.scores import parse_noise_var
 from ..models.material import per_texel
 from ..render.views import collocated_views, hemisphere_directions, light_stage_views
-from .common import FIGURE_SAMPLER, PAPER_SIGMA, SURFACE, line_plot, prepare, say, write_json
+from .common import (FIGURE_SAMPLER, PAPER_SIGMA, SURFACE, is_mesh, line_plot, mesh_rig, prepare, say,
+                     scene_surface, write_json)
 
 DESCRIPTION = "guided capture (MI) vs low-discrepancy baseline: novel-view error and image-space std vs views"
 
@@ -44,10 +54,42 @@ PRESETS = {
                  particles=20, seeds=3, noise=0.005, radius=10.0, estimator="mc", noise_var=0.0,
                  camera="rectified", fov=40.0),
 }
+for _p in PRESETS.values():   # the planar sample; ``image_resolution`` is for meshes (0: twice the map resolution)
+    _p.update(surface="plane", image_resolution=0)
+# on a mesh (``camera`` and ``fov`` are the plane's: a mesh is seen by perspective cameras, see the docstring)
+PRESETS["mesh_small"] = dict(PRESETS["small"], surface="bowl", resolution=16, image_resolution=32, candidates=120,
+                             cameras_ls=20, lights_ls=6, novel=4, steps=300, seeds=1)
+PRESETS["mesh"] = dict(PRESETS["full"], surface="bunny", resolution=32, image_resolution=48, candidates=1000,
+                       cameras_ls=70, lights_ls=30, novel=10, steps=500, seeds=3)
+#: cameras on a mesh stay within this zenith angle (degrees from +z about ``mesh.center``), lights too
+MESH_ZENITH = 85.0
+#: light-stage lights on a mesh: on a sphere this many times the cameras' distance
+LIGHT_DISTANCE = 4.0 / 3.0
 METHODS = {"mi": "guided (mutual information)", "sobol": "baseline (low-discrepancy)"}
 
 
-def _setting(cfg, kind: str, seed: int):
+def _mesh_setting(cfg, kind: str, seed: int, mesh):
+    dist, kw = mesh_rig(mesh, int(cfg["image_resolution"]) or 2 * int(cfg["resolution"]))
+    z = MESH_ZENITH
+    if kind == "collocated":
+        cands = collocated_views(int(cfg["candidates"]), dist, method="sobol", seed=seed, max_zenith=z, **kw)
+        novel = collocated_views(int(cfg["novel"]), dist, method="random", seed=10_000 + seed, max_zenith=z, **kw)
+        return cands, novel, int(cfg["initial"]), [int(cfg["k_first"])] + [int(cfg["k"])] * (int(cfg["rounds"]) - 1)
+    ld = LIGHT_DISTANCE * dist
+    kw = dict(kw, power=kw["power"] * LIGHT_DISTANCE ** 2)
+    cams = hemisphere_directions(int(cfg["cameras_ls"]), "sobol", z, seed=seed)
+    lights = hemisphere_directions(int(cfg["lights_ls"]), "fibonacci", z)
+    cands = light_stage_views(cams, lights, dist, ld, **kw)
+    g = torch.Generator().manual_seed(10_000 + seed)
+    ncam = hemisphere_directions(int(cfg["novel"]), "random", z, seed=10_000 + seed)
+    nl = lights[torch.randint(len(lights), (int(cfg["novel"]),), generator=g)]
+    novel = [v for i, v in enumerate(light_stage_views(ncam, nl, dist, ld, **kw)) if i % (len(nl) + 1) == 0]
+    return cands, novel, int(cfg["initial_ls"]), [int(cfg["k_ls"])] * int(cfg["rounds_ls"])
+
+
+def _setting(cfg, kind: str, seed: int, surface=SURFACE):
+    if is_mesh(surface):
+        return _mesh_setting(cfg, kind, seed, surface)
     R = int(cfg["resolution"])
     common = dict(camera=str(cfg["camera"]), resolution=R, power=10.0, fov=float(cfg["fov"]))
     if kind == "collocated":
@@ -68,11 +110,13 @@ def run_setting(cfg, kind: str, seed: int, out: Path | None = None, progress: bo
     """Both methods on one setting and seed: ``{method: [{"views", "novel_error", "mean_image_std"}, ...]}``."""
     from ..materials import make_material
 
+    surface = scene_surface(cfg["surface"])
     truth = make_material(cfg["material"], int(cfg["resolution"]), seed=seed).to(torch.float32)
-    cap = SyntheticCapture(truth, SURFACE, noise_sigma=float(cfg["noise"]), seed=seed)
-    cands, novel, n0, ks = _setting(cfg, kind, seed)
-    ev = Evaluation.synthetic(SyntheticCapture(truth, SURFACE), novel)   # noiseless truth for the error
-    init_idx = low_discrepancy(cands, n0, seed=seed)
+    cap = SyntheticCapture(truth, surface, noise_sigma=float(cfg["noise"]), seed=seed)
+    cands, novel, n0, ks = _setting(cfg, kind, seed, surface)
+    ev = Evaluation.synthetic(SyntheticCapture(truth, surface), novel)   # noiseless truth for the error
+    init_idx = (low_discrepancy(cands, n0, seed=seed, target=surface.center) if is_mesh(surface)
+                else low_discrepancy(cands, n0, seed=seed))
     initial = cap([cands[i] for i in init_idx])
     res = {}
     for method in METHODS:
@@ -105,16 +149,21 @@ def _mean_curves(runs: list[dict]) -> dict:
             vals = [[row[i][key] for row in rows] for i in range(len(views))]
             out[method][key] = [statistics.fmean(v) for v in vals]
             out[method][key + "_sem"] = [statistics.stdev(v) / len(v) ** 0.5 if len(v) > 1 else 0.0 for v in vals]
+            out[method][key + "_sd"] = [statistics.stdev(v) if len(v) > 1 else 0.0 for v in vals]
     return out
 
 
 def run(out, preset: str = "small", seed: int = 0, progress: bool = False, **overrides) -> dict:
     cfg, out = prepare(__name__, preset, overrides, out)
+    t0 = time.perf_counter()
     result = {"preset": preset, "config": cfg, "settings": {}}
-    summary = {}
+    summary, seconds = {}, {}
     for kind in ("collocated", "light_stage"):
+        t1 = time.perf_counter()
         runs = [run_setting(cfg, kind, seed + s, out / "runs", progress) for s in range(int(cfg["seeds"]))]
+        seconds[kind] = time.perf_counter() - t1
         curves = _mean_curves(runs)
+        where = "" if cfg["surface"] == "plane" else f" on the {scene_surface(cfg['surface']).name}"
         result["settings"][kind] = {"runs": runs, "mean": curves}
         for key, label in (("novel_error", "novel-view error of the MAP"),
                            ("mean_image_std", "mean image-space std (Eq. 11)")):
@@ -122,7 +171,7 @@ def run(out, preset: str = "small", seed: int = 0, progress: bool = False, **ove
                       {METHODS[m]: (curves[m]["views"], curves[m][key]) for m in METHODS},
                       errors={METHODS[m]: curves[m][key + "_sem"] for m in METHODS},
                       xlabel="number of views", ylabel=label,
-                      title=f"Fig. 7, {kind.replace('_', ' ')}: mean of {cfg['seeds']} seeds (bars: s.e.)")
+                      title=f"Fig. 7, {kind.replace('_', ' ')}{where}: mean of {cfg['seeds']} seeds (bars: s.e.)")
         # after the first recommendation (equal view counts, both methods)
         g, b = curves["mi"], curves["sobol"]
         later = range(1, len(g["views"]))
@@ -133,7 +182,14 @@ def run(out, preset: str = "small", seed: int = 0, progress: bool = False, **ove
             "error_ratio_after_guidance": statistics.fmean(g["novel_error"][i] / b["novel_error"][i] for i in later),
             "std_ratio_after_guidance": statistics.fmean(g["mean_image_std"][i] / b["mean_image_std"][i]
                                                          for i in later),
+            # the last round: mean and sd over seeds, per seed, and in how many seeds guided is lower
+            "final": {m: {"error_mean": curves[m]["novel_error"][-1], "error_sd": curves[m]["novel_error_sd"][-1],
+                          "std_mean": curves[m]["mean_image_std"][-1], "std_sd": curves[m]["mean_image_std_sd"][-1],
+                          "error_per_seed": [r[m][-1]["novel_error"] for r in runs]} for m in METHODS},
+            "guided_lower_final_error_seeds": sum(r["mi"][-1]["novel_error"] < r["sobol"][-1]["novel_error"]
+                                                  for r in runs),
         }
     result["summary"] = summary
+    result["seconds"] = {**seconds, "total": time.perf_counter() - t0}
     write_json(out, "fig7", result)
     return result

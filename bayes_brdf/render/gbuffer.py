@@ -118,10 +118,12 @@ class GBuffer:
                    if isinstance(t := getattr(self, f.name), Tensor))
 
     @staticmethod
-    def bytes_per_view(view: View, dtype=torch.float32) -> int:
-        """Memory one view adds to a G-buffer (``dtype`` values; for planning chunks before building)."""
+    def bytes_per_view(view: View, dtype=torch.float32, flat: bool = True) -> int:
+        """Memory one view adds to a G-buffer (``dtype`` values; for planning chunks before building); ``flat``:
+        the surface's frame is one vector (the plane), else three per pixel (a mesh) and its compacted copy."""
         h, w = view.resolution
-        return h * w * ((8 + 7 * len(view.lights)) * torch.finfo(dtype).bits // 8 + 1)
+        floats = 8 + 7 * len(view.lights) + (0 if flat else 9 + 17 + 7 * len(view.lights))
+        return h * w * (floats * torch.finfo(dtype).bits // 8 + 1)
 
     @property
     def resolution(self) -> tuple[int, int]:
@@ -260,7 +262,8 @@ class GBufferCache:
         one at a time and not kept, so a set of several GB never sits in memory whole. A block holds a quarter
         of the budget: :meth:`GBuffer.build` works in float64 and stacks, about 4x the result at its peak."""
         views = list(views)
-        per_view = max(GBuffer.bytes_per_view(v, dtype) for v in views)
+        flat = isinstance(surface, PlanarSample)
+        per_view = max(GBuffer.bytes_per_view(v, dtype, flat) for v in views)
         if per_view * len(views) <= self.max_bytes:
             yield 0, self.get(views, surface, dtype=dtype, device=device)
             return
