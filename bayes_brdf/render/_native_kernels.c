@@ -23,6 +23,7 @@
  * loops, so the maps are read once and the gradients stay in registers/L1.
  */
 #include <math.h>
+#include <omp.h>
 #include <stdint.h>
 #include <string.h>
 
@@ -225,9 +226,15 @@ void bb_shade(int64_t mode, int64_t n, int64_t V, int64_t L, int64_t P, int64_t 
                      tidx, tw, kd, r, ks, nl, nv, nh2, w, amp, y, wgt, gout, out, epart, gkd, gr, gks};
     const int64_t nb = q.nb;
     if (tidx) {
-#pragma omp parallel for schedule(static) num_threads(nthreads)
-        for (int64_t i = 0; i < n; i++)
-            for (int64_t b = 0; b < nb; b++) block(&q, i, b);
+        /* each particle belongs to one thread (i mod threads), which walks the blocks in order: its
+         * gradient maps have one writer and a fixed summation order; a block's geometry stays in cache
+         * across the thread's particles */
+#pragma omp parallel num_threads(nthreads)
+        {
+            const int64_t t = omp_get_thread_num(), nt = omp_get_num_threads();
+            for (int64_t b = 0; b < nb; b++)
+                for (int64_t i = t; i < n; i += nt) block(&q, i, b);
+        }
     } else {
         /* blocks outside, particles inside: a block's geometry (all views) stays in cache across particles */
 #pragma omp parallel for schedule(static) num_threads(nthreads)
