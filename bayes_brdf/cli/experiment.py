@@ -16,7 +16,9 @@ def add_parser(sub):
                                    "cores (what CI runs); 'full' is paper-sized. 'bayes-brdf experiment list' shows "
                                    "them all.")
     e.add_argument("name", help="experiment name (fig2, fig3, fig4, fig5, fig7) or 'list'")
-    e.add_argument("--preset", default="small", help="small or full (default: %(default)s)")
+    e.add_argument("--preset", default="small",
+                   help="small or full; fig4 and fig7 also mesh_small and mesh (the same on a mesh: the bowl, the "
+                        "bunny of ../shared/data) (default: %(default)s)")
     e.add_argument("--set", type=key_value, action="append", default=[], metavar="KEY=VALUE",
                    help="override a preset setting, e.g. steps=2000 (repeatable)")
     e.add_argument("--seed", type=int, default=0, help="random seed (default: %(default)s)")

@@ -28,6 +28,7 @@ rendering error of the MAP estimate and the mean image-space std (Eq. 11). Numbe
 """
 from __future__ import annotations
 
+import math
 import statistics
 import time
 from pathlib import Path
@@ -39,8 +40,8 @@ from ..guidance.recommend import low_discrepancy
 from ..guidance.scores import parse_noise_var
 from ..models.material import per_texel
 from ..render.views import collocated_views, hemisphere_directions, light_stage_views
-from .common import (FIGURE_SAMPLER, PAPER_SIGMA, SURFACE, is_mesh, line_plot, mesh_rig, prepare, say,
-                     scene_surface, write_json)
+from .common import (PAPER_SIGMA, SURFACE, SURFACES, is_mesh, line_plot, mesh_rig, prepare, sampler_of,
+                     save_figure, say, scene_surface, write_json)
 
 DESCRIPTION = "guided capture (MI) vs low-discrepancy baseline: novel-view error and image-space std vs views"
 
@@ -55,12 +56,18 @@ PRESETS = {
                  camera="rectified", fov=40.0),
 }
 for _p in PRESETS.values():   # the planar sample; ``image_resolution`` is for meshes (0: twice the map resolution)
-    _p.update(surface="plane", image_resolution=0)
+    _p.update(surface="plane", image_resolution=0, sampler="figure")
 # on a mesh (``camera`` and ``fov`` are the plane's: a mesh is seen by perspective cameras, see the docstring)
-PRESETS["mesh_small"] = dict(PRESETS["small"], surface="bowl", resolution=16, image_resolution=32, candidates=120,
-                             cameras_ls=20, lights_ls=6, novel=4, steps=300, seeds=1)
+# and scored with the observation noise: noise-free (``noise_var=0``) every counted pixel adds its log spread, a
+# negative number for a pixel the particles agree on, so on a mesh, where the number of texels a view sees
+# varies, the sum prefers views that see few texels (on the bowl its top 5 are side views with 28-39 counted
+# pixels where the median candidate has 116; see docs/experiments.md, "Fig. 7 on a mesh")
+PRESETS["mesh_small"] = dict(PRESETS["small"], surface="bowl", resolution=16, image_resolution=32, candidates=100,
+                             cameras_ls=20, lights_ls=5, novel=4, steps=250, seeds=1, sampler="spos",
+                             noise_var="observation")
 PRESETS["mesh"] = dict(PRESETS["full"], surface="bunny", resolution=32, image_resolution=48, candidates=1000,
-                       cameras_ls=70, lights_ls=30, novel=10, steps=500, seeds=3)
+                       cameras_ls=70, lights_ls=30, novel=10, steps=800, seeds=3, sampler="spos",
+                       noise_var="observation")
 #: cameras on a mesh stay within this zenith angle (degrees from +z about ``mesh.center``), lights too
 MESH_ZENITH = 85.0
 #: light-stage lights on a mesh: on a sphere this many times the cameras' distance
@@ -107,7 +114,8 @@ def _setting(cfg, kind: str, seed: int, surface=SURFACE):
 
 
 def run_setting(cfg, kind: str, seed: int, out: Path | None = None, progress: bool = False) -> dict:
-    """Both methods on one setting and seed: ``{method: [{"views", "novel_error", "mean_image_std"}, ...]}``."""
+    """Both methods on one setting and seed: ``{method: [{"views", "novel_error", "mean_image_std", "param_error",
+    "picks"}, ...], "initial": [candidate indices]}`` (``picks``: the candidates recommended after that round)."""
     from ..materials import make_material
 
     surface = scene_surface(cfg["surface"])
@@ -122,7 +130,7 @@ def run_setting(cfg, kind: str, seed: int, out: Path | None = None, progress: bo
     for method in METHODS:
         r = guided_acquisition(per_texel(int(cfg["resolution"]), sigma=PAPER_SIGMA), initial, cands, cap, rounds=len(ks), k=ks,
                                method=method, radius=float(cfg["radius"]), steps=int(cfg["steps"]),
-                               sampler=FIGURE_SAMPLER, map_steps=0,
+                               sampler=sampler_of(cfg["sampler"]), map_steps=0,
                                particles=int(cfg["particles"]), seed=seed, initial_indices=init_idx,
                                evaluation=ev, progress=progress,
                                on_round=lambda rec, post, m=method: say(
@@ -132,8 +140,61 @@ def run_setting(cfg, kind: str, seed: int, out: Path | None = None, progress: bo
                                out=None if out is None else out / f"{kind}_{method}_seed{seed}",
                                score_kw={"estimator": cfg["estimator"], "noise_var": cfg["noise_var"]})
         res[method] = [{"views": rec["views"], **{k: rec["metrics"][k] for k in ("novel_error", "mean_image_std")},
-                        "param_error": rec["metrics"].get("param_error")} for rec in r.rounds]
+                        "param_error": rec["metrics"].get("param_error"),
+                        "picks": rec["picks"]["indices"] if rec.get("picks") else []} for rec in r.rounds]
+    res["initial"] = [int(i) for i in init_idx]
     return res
+
+
+def _directions(view, centre) -> tuple[tuple[float, float], tuple[float, float]]:
+    """``((camera zenith, azimuth), (light zenith, azimuth))`` in degrees, seen from ``centre``."""
+    out = []
+    for p in (view.camera.position, view.lights[0].position):
+        d = [a - b for a, b in zip(p, centre)]
+        r = math.sqrt(sum(x * x for x in d))
+        out.append((math.degrees(math.acos(max(-1.0, min(1.0, d[2] / r)))), math.degrees(math.atan2(d[1], d[0]))))
+    return out[0], out[1]
+
+
+def _seeds(n) -> str:
+    return f"{int(n)} seed{'' if int(n) == 1 else 's'}"
+
+
+def _views_figure(path, cfg, kind: str, runs: list, seed: int, surface, name: str):
+    """Where each method's views went (all seeds): camera directions seen from the centre, polar (radius: zenith
+    angle), coloured by the round that added them; light-stage lights as crosses of the same colour."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    centre = tuple(surface.center)
+    fig, axes = plt.subplots(1, 2, subplot_kw={"projection": "polar"}, figsize=(7.6, 3.9))
+    nr = max(len(runs[0]["mi"]) - 1, 1)
+    cmap = plt.get_cmap("viridis")
+    for ax, m in zip(axes, METHODS):
+        for s, run in enumerate(runs):
+            cands = _setting(cfg, kind, seed + s, surface)[0]
+            groups = [(run["initial"], "0.55", "initial")] + [(row["picks"], cmap(i / max(nr - 1, 1)), f"round {i + 1}")
+                                                             for i, row in enumerate(run[m][:-1])]
+            for idx, colour, lab in groups:
+                dirs = [_directions(cands[i], centre) for i in idx]
+                if not dirs:
+                    continue
+                ax.scatter([math.radians(c[1]) for c, _ in dirs], [c[0] for c, _ in dirs], s=14, color=colour,
+                           label=lab if s == 0 else None, edgecolors="k", linewidths=0.3, zorder=3)
+                if kind == "light_stage":
+                    ax.scatter([math.radians(lt[1]) for _, lt in dirs], [lt[0] for _, lt in dirs], s=14, marker="x",
+                               color=colour, linewidths=0.8, zorder=2)
+        ax.set_ylim(0, 90)
+        ax.set_yticks([30, 60, 90])
+        ax.tick_params(labelsize=6)
+        ax.set_title(METHODS[m], fontsize=8)
+    axes[1].legend(fontsize=6, loc="upper left", bbox_to_anchor=(1.05, 1.0))
+    what = "cameras (dots) and lights (crosses)" if kind == "light_stage" else "cameras"
+    fig.suptitle(f"Fig. 7, {kind.replace('_', ' ')} on the {name}: {what} of {_seeds(len(runs))}, seen from above "
+                 f"(radius: zenith angle)", fontsize=8)
+    fig.tight_layout()
+    return save_figure(fig, path)
 
 
 SETTING_TYPES = {"noise_var": parse_noise_var}
@@ -163,7 +224,8 @@ def run(out, preset: str = "small", seed: int = 0, progress: bool = False, **ove
         runs = [run_setting(cfg, kind, seed + s, out / "runs", progress) for s in range(int(cfg["seeds"]))]
         seconds[kind] = time.perf_counter() - t1
         curves = _mean_curves(runs)
-        where = "" if cfg["surface"] == "plane" else f" on the {scene_surface(cfg['surface']).name}"
+        surface = scene_surface(cfg["surface"])
+        name = cfg["surface"] if cfg["surface"] in SURFACES else surface.name
         result["settings"][kind] = {"runs": runs, "mean": curves}
         for key, label in (("novel_error", "novel-view error of the MAP"),
                            ("mean_image_std", "mean image-space std (Eq. 11)")):
@@ -171,7 +233,11 @@ def run(out, preset: str = "small", seed: int = 0, progress: bool = False, **ove
                       {METHODS[m]: (curves[m]["views"], curves[m][key]) for m in METHODS},
                       errors={METHODS[m]: curves[m][key + "_sem"] for m in METHODS},
                       xlabel="number of views", ylabel=label,
-                      title=f"Fig. 7, {kind.replace('_', ' ')}{where}: mean of {cfg['seeds']} seeds (bars: s.e.)")
+                      title=(f"Fig. 7, {kind.replace('_', ' ')} on the {name}:\nmean of {_seeds(cfg['seeds'])} "
+                             f"(bars: s.e.)" if is_mesh(surface) else
+                             f"Fig. 7, {kind.replace('_', ' ')}: mean of {cfg['seeds']} seeds (bars: s.e.)"))
+        if is_mesh(surface):
+            _views_figure(out / f"fig7_{kind}_views.png", cfg, kind, runs, seed, surface, name)
         # after the first recommendation (equal view counts, both methods)
         g, b = curves["mi"], curves["sobol"]
         later = range(1, len(g["views"]))

@@ -40,3 +40,26 @@ def test_fig5_low_roughness_prior_lowers_the_uncertainty(tmp_path):
         assert (tmp_path / name).stat().st_size > 5000, name
     saved = json.loads((tmp_path / "fig5.json").read_text())
     assert saved["summary"]["prior_lowers_std"] is True
+
+
+@pytest.mark.slow
+def test_fig4_on_a_mesh_std_correlates_with_the_errors_on_the_object(tmp_path):
+    """``mesh_small``: the built-in bowl (no shared data needed), 10 flash photos from perspective cameras."""
+    m = get("fig4")
+    res = m.run(tmp_path, preset="mesh_small", seed=0)
+    assert res["config"]["surface"] == "bowl" and res["surface"]["name"] == "bowl"
+    assert set(res["per_view"]) == {"below", "crossed"}
+    for e in m.ESTIMATES:
+        avg = res["average"][e]   # over the two novel views, object pixels only
+        assert avg["pearson"] > 0 and avg["spearman"] > 0, (e, avg)
+        for view in res["per_view"].values():
+            assert all(math.isfinite(view[e][k]) for k in ("pearson", "spearman", "mae")), (e, view[e])
+            assert view["object_pixels"] > 100 and 0 <= view["unseen_texel_pixels"] <= view["object_pixels"]
+        assert all(math.isfinite(v) for v in res["parameter_error"][e].values()), res["parameter_error"][e]
+    assert res["summary"]["all_positive"]
+    assert 0.3 < res["texels_seen_fraction"] < 1.0   # the photos miss some texels (underside, atlas gaps)
+    for name in ("fig4.png", "fig4_below.png", "fig4_crossed.png", "fig4_texture.png"):
+        assert (tmp_path / name).stat().st_size > 5000, name
+    saved = json.loads((tmp_path / "fig4.json").read_text())
+    assert saved["summary"] == json.loads(json.dumps(res["summary"]))
+    assert saved["config"]["surface"] == "bowl"
