@@ -34,6 +34,11 @@ unconstrained units, which must then sit below the tightest posterior std).
 ``beta`` is nearly SVGD (good in low dimension, collapses in high dimension);
 ``beta = 1`` is calibrated in high dimension. ``beta = "auto"`` picks
 ``max(1, beta_low_dim * 2 / D)``: measured choices in docs/samplers.md.
+
+``adam_eps`` bounds Adam's scale ``1 / (sqrt(v) + eps)`` by ``1 / eps``. In low dimension, once the Stein
+part balances the likelihood, the drift's rms falls towards ``|grad U| / beta`` and an unbounded scale
+grows by up to ``beta`` (200 in 2-D), and the ensemble over-contracts. ``adam_eps = "auto"`` is ``2 / D``:
+a bound of 1 in 2-D, none to speak of in high dimension, where ``beta = 1`` and nothing grows.
 """
 from __future__ import annotations
 
@@ -64,7 +69,7 @@ class SPOS(Sampler):
     anneal_fraction: float = 0.2     # T of Eq. (6) as a fraction of the run's steps
     preconditioner: str = "adam"     # "adam" or "none"
     adam_beta2: float = 0.99
-    adam_eps: float = 1e-8
+    adam_eps: "float | str" = 1e-8  # a number, or "auto" = 2 / D (see the module docstring)
     step_units: str = "parameter"    # "parameter": lambda in unconstrained units; "spread": a fraction of the
     #                                  particles' per-coordinate spread (std within the group)
     min_spread: float = 1e-3         # "spread": floor of the spread (a collapsed or one-particle group)
@@ -73,7 +78,9 @@ class SPOS(Sampler):
     State = SPOSState
 
     def validate(self):
-        self._positive("step_size", "anneal_delta", "adam_eps", "beta_low_dim")
+        self._positive("step_size", "anneal_delta", "beta_low_dim")
+        if self.adam_eps != "auto":
+            self._positive("adam_eps")
         self._choice("preconditioner", ("adam", "none"))
         self._choice("step_units", ("parameter", "spread"))
 
@@ -88,6 +95,9 @@ class SPOS(Sampler):
     def beta_for(self, dim: int) -> float:
         return max(1.0, self.beta_low_dim * 2.0 / dim) if self.beta == "auto" else float(self.beta)
 
+    def eps_for(self, dim: int) -> float:
+        return 2.0 / dim if self.adam_eps == "auto" else float(self.adam_eps)
+
     def particles_are_chains(self, dim: int) -> bool:
         # with a large beta (low dimension) the Stein part dominates: particles settle like SVGD's
         return self.beta_for(dim) <= 5
@@ -101,18 +111,17 @@ class SPOS(Sampler):
         n, D = z.shape[0] // self.groups, z.shape[1]
         u, grad = potential.value_and_grad(z)
         gam = anneal(t, round(self.anneal_fraction * self.num_steps), self.anneal_delta) if self.anneal else 1.0
-        beta = self.beta_for(D)
+        beta, eps = self.beta_for(D), self.eps_for(D)
         K, rep = rbf_median(z, self.groups)
         kg = kernel_apply(K, grad)
         shape = (self.groups, n, D)
         pc, pn = state.precond, state.precond_noise
         if self.preconditioner == "adam" and gam < 0.99:
             # un-annealed update, for the noise's scale (see the module docstring)
-            pn, G1 = precond_update(pn, (rep - kg).div_(n).sub_(grad, alpha=1 / beta), self.adam_beta2,
-                                    self.adam_eps)
+            pn, G1 = precond_update(pn, (rep - kg).div_(n).sub_(grad, alpha=1 / beta), self.adam_beta2, eps)
         drift = rep.sub_(kg, alpha=gam).div_(n).sub_(grad, alpha=gam / beta)    # in place: rep is ours
         if self.preconditioner == "adam":
-            pc, G = precond_update(pc, drift, self.adam_beta2, self.adam_eps)
+            pc, G = precond_update(pc, drift, self.adam_beta2, eps)
             Gn = torch.minimum(G, G1) if gam < 0.99 else G
         else:
             G = Gn = torch.ones((), dtype=z.dtype, device=z.device)
