@@ -132,10 +132,16 @@ def test_fit_with_every_view_fitted_does_not_claim_heldout_maps(captures, tmp_pa
     assert "nothing is held out" in said and "heldout/" not in said and not (out / "heldout").exists()
 
 
+def _default_sigint():
+    # as in a terminal: a shell starts background jobs (e.g. a CI script run with `&`) with SIGINT ignored, and
+    # Python then never raises KeyboardInterrupt, so Ctrl-C would not reach the run this test interrupts
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def _cli(*args, **kw):
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
     return subprocess.Popen([sys.executable, "-m", "bayes_brdf", *args], stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True, env=env, **kw)
+                            stderr=subprocess.PIPE, text=True, env=env, preexec_fn=_default_sigint, **kw)
 
 
 STEPS = 800
