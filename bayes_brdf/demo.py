@@ -166,7 +166,7 @@ def _real_capture(rep, path, out: Path, cfg, progress, log) -> dict:
     order = sorted(range(len(held_idx)), key=lambda i: -float(scores.mi[i]))
     rep.table([[held_idx[i], float(scores.mi[i]), h["views"][i]["mean_abs_error"], h["views"][i]["mean_std"]]
                for i in order],
-              header=["held-out photo (ranked by MI)", "mutual information (nats)", "MAP error there",
+              header=["held-out photo (ranked by MI)", "MI score (nats; only differences matter)", "MAP error there",
                       "mean predicted std"])
     rep.text("The ranking is what `bayes-brdf recommend` would say about these photos had they not been taken: the "
              "photos it ranks first are those whose pixels the current posterior predicts least well.", cls="note")

@@ -171,7 +171,7 @@ def plot_candidates(path, cands, scores, picks, title, centre=(0.0, 0.0, 0.0)):
     ax.set_xlabel("camera direction x")
     ax.set_ylabel("camera direction y")
     ax.set_title(title, fontsize=9)
-    fig.colorbar(sc, ax=ax, fraction=0.046, pad=0.04, label="mutual information (nats)")
+    fig.colorbar(sc, ax=ax, fraction=0.046, pad=0.04, label="MI score, nats (only differences matter)")
     ax.legend(fontsize=7, loc="lower right")
     fig.tight_layout()
     save_figure(fig, path, dpi=110)
