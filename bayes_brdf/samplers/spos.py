@@ -42,6 +42,7 @@ a bound of 1 in 2-D, none to speak of in high dimension, where ``beta = 1`` and 
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import NamedTuple
 
@@ -79,15 +80,15 @@ class SPOS(Sampler):
 
     def validate(self):
         self._positive("step_size", "anneal_delta", "beta_low_dim")
-        if self.adam_eps != "auto":
-            self._positive("adam_eps")
         self._choice("preconditioner", ("adam", "none"))
         self._choice("step_units", ("parameter", "spread"))
 
         self._positive("min_spread")
-        if not (self.beta == "auto" or (isinstance(self.beta, (int, float)) and not isinstance(self.beta, bool)
-                                        and self.beta > 0)):
-            raise _bad("beta", self.beta, "a positive number or \"auto\"")
+        for k in ("beta", "adam_eps"):   # the dimension-aware ones: a number, or "auto" (beta_for, eps_for)
+            v = getattr(self, k)
+            if not (v == "auto" or (isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+                                    and v > 0)):
+                raise _bad(k, v, "a positive number or \"auto\"")
         self._unit("adam_beta2")
         if not 0 < self.anneal_fraction <= 1:
             raise _bad("anneal_fraction", self.anneal_fraction, "in (0, 1]")
