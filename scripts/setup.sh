@@ -8,7 +8,10 @@ cd "$(dirname "$0")/.."
 PY=${PYTHON:-python3}
 VENV=${VENV:-.venv}
 
-llvm_present() { ls /usr/lib/*/libLLVM.so.19* /usr/lib/llvm-19/lib/libLLVM*.so* >/dev/null 2>&1; }
+llvm_present() {  # any one of the usual places (ls of both fails when either glob matches nothing)
+  for f in /usr/lib/*/libLLVM.so.19* /usr/lib/llvm-19/lib/libLLVM*.so*; do [ -e "$f" ] && return 0; done
+  return 1
+}
 if ! llvm_present; then
   if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null; then
     echo "setup: installing libllvm19 (Mitsuba's llvm_ad_rgb needs it)"
