@@ -11,7 +11,8 @@ import torch
 from .errors import ConvergenceWarning, InputError
 from .identity import data_digest, digest_tensor, fingerprint, model_description
 from .models.data import ModelData
-from .models.material import MaterialModel, from_preset
+from .models.base import describe, infers_sigma
+from .models.material import from_preset
 from .observations import Observations
 from .posterior import Posterior
 from .potential import Potential
@@ -109,11 +110,11 @@ def infer(model: "Callable | str | dict", observations: "Observations | ModelDat
         energies = pot.energy(res.z, jacobian=False)
     meta = {"sampler": smp.name, "params": smp.params(), "run": vars(cfg), "seed": seed,
             "evaluations": res.evaluations, "steps": res.steps, "identity": identity,
-            "model": model.to_dict() if isinstance(model, MaterialModel) else getattr(model, "__name__", str(model)),
+            "model": describe(model),
             "observations": observations.meta if isinstance(observations, Observations) else {},
             "surface": surface_state(data.observations.surface)[0],
             "diagnostics": res.diagnostics.to_dict() if res.diagnostics is not None else None}
-    if isinstance(model, MaterialModel) and model.sigma == "auto":
+    if infers_sigma(model):
         s = model.noise_sigma(data, pot.to_constrained(res.z))
         meta["noise_sigma"] = float(s.mean())
     post = Posterior(pot.to_constrained(res.z), energies, z=res.z, meta=meta, potential=pot, model=model,

@@ -242,7 +242,8 @@ class Potential:
         return torch.cat(parts, dim=1)
 
     def init(self, n: int, seed: int = 0, margin: float = 0.0) -> Tensor:
-        """``[n, D]`` particles drawn from the prior (one model run under the particle plate).
+        """``[n, D]`` particles drawn from the prior (one model run under the particle plate), or the model's own
+        start when it offers ``initial_values(data, n, seed=...)`` (``{site: [n, ...]}``, the model protocol).
 
         ``margin > 0`` clamps the draws of sites on an interval ``[lo, hi]`` to
         ``[lo + margin (hi - lo), hi - margin (hi - lo)]``: a draw near a bound sits where the
@@ -251,6 +252,10 @@ class Potential:
         """
         if not 0 <= margin < 0.5:
             raise InputError(f"init margin must be in [0, 0.5), got {margin!r}")
+        start = getattr(self.model, "initial_values", None)
+        if callable(start):    # the model protocol: a model that says where to start (docs/models.md)
+            vals = start(*self.args, n, seed=seed, **self.kwargs)
+            return self.to_unconstrained({s.name: vals[s.name].reshape(n, *s.shape) for s in self.sites}).detach()
         with torch.random.fork_rng(devices=[self.device] if self.device.type == "cuda" else []):
             torch.manual_seed(seed)
             tr = self._trace(self.model, n=n)

@@ -12,7 +12,7 @@ or 3 RGB), ``roughness`` ``[1]`` / ``[1, R, R]`` in ``roughness_range``, optiona
 """
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 
 import pyro
 import pyro.distributions as dist
@@ -23,36 +23,25 @@ from ..errors import InputError
 from ..render.maps import SVBRDF
 from . import priors as P
 from .data import ModelData
-from .likelihood import KINDS, RenderedImages, check_saturated, check_sigma, observe
-
-MAPS = ("albedo", "roughness", "specular", "normal")
+from .base import MAPS, ObservedModel  # noqa: F401  (MAPS re-exported)
 
 
 @dataclass
-class MaterialModel:
-    """Common options of the built-in models (see :func:`homogeneous` and :func:`per_texel`)."""
+class MaterialModel(ObservedModel):
+    """Common options of the microfacet-map models (see :func:`homogeneous` and :func:`per_texel`)."""
 
     albedo: str = "rgb"                                # "rgb" or "gray"
     roughness_range: tuple = (0.05, 1.0)
     specular: object = 0.04                            # a fixed value / map, or "infer"
     prior: object = field(default_factory=P.uniform)   # a Prior, or {site: Prior}
-    sigma: object = "auto"                             # "auto" (inferred, integrated out) or a fixed noise scale
-    likelihood: str = "laplace"
-    saturated: str = "censored"                        # clipped pixels: "censored" (lower bounds) or "drop"
-    backend: str = "auto"
-
-    kind = "model"
 
     def __post_init__(self):
+        super().__post_init__()
         if self.albedo not in ("rgb", "gray"):
             raise InputError(f"albedo must be 'rgb' or 'gray', got {self.albedo!r}")
         lo, hi = self.roughness_range
         if not 0 < lo < hi <= 1:
             raise InputError(f"roughness_range must satisfy 0 < low < high <= 1, got {self.roughness_range}")
-        check_sigma(self.sigma)
-        check_saturated(self.saturated)
-        if self.likelihood not in KINDS:
-            raise InputError(f"unknown likelihood '{self.likelihood}'", fix=f"use one of {', '.join(KINDS)}")
         if isinstance(self.specular, str) and self.specular != "infer":
             raise InputError(f"specular must be a number, a map or 'infer', got {self.specular!r}")
 
@@ -72,40 +61,10 @@ class MaterialModel:
         return ["albedo", "roughness"] + (["specular"] if self.specular == "infer" else [])
 
     def to_dict(self) -> dict:
-        d = asdict(self)
-        d["model"] = self.kind
+        d = super().to_dict()
         d["prior"] = ({k: P.from_dict(v).to_dict() for k, v in self.prior.items()} if isinstance(self.prior, dict)
                       else P.from_dict(self.prior).to_dict())
-        for k, v in list(d.items()):
-            if isinstance(v, Tensor):
-                d[k] = "fixed map"
         return d
-
-    def __call__(self, data: ModelData):
-        values = self.sample_sites(data)
-        observe(data, self.maps(values), sigma=self.sigma, kind=self.likelihood, backend=self.backend,
-                saturated=self.saturated)
-
-    def noise_sigma(self, data: ModelData, values: dict) -> Tensor:
-        """The noise scale per particle ``[n]`` for site values ``{site: [n, ...]}``: the fixed ``sigma``, or
-        under ``sigma = "auto"`` the level the residuals show (the mode of sigma given the maps)."""
-        n = next(iter(values.values())).shape[0]
-        if self.sigma != "auto":
-            return torch.full((n,), float(self.sigma), dtype=data.dtype, device=data.device)
-        with torch.no_grad():
-            return RenderedImages(self.maps(values), data, "auto", self.likelihood, self.backend).sigma_hat(data.images)
-
-    def _fixed(self, value, channels: int, like: Tensor) -> Tensor:
-        """A fixed map as a tensor, made once per dtype/device: the renderer caches the geometry
-        derived from fixed maps by tensor identity, so a fresh tensor per call would defeat it."""
-        key = (id(value) if isinstance(value, Tensor) else repr(value), channels, like.dtype, str(like.device))
-        cache = self.__dict__.setdefault("_fixed_cache", {})
-        if key not in cache:
-            t = torch.as_tensor(value, dtype=like.dtype, device=like.device)
-            if t.dim() <= 1:
-                t = (t.reshape(-1).expand(channels) if t.numel() == 1 else t).reshape(channels, 1, 1)
-            cache[key] = t.contiguous()
-        return cache[key]
 
 
 @dataclass
@@ -211,20 +170,30 @@ def per_texel(resolution: int = 128, **kw) -> PerTexel:
     return PerTexel(resolution=resolution, **kw)
 
 
-BUILTIN = {"homogeneous": Homogeneous, "per_texel": PerTexel}
+def _builtin():
+    from .latent_decoder import LatentDecoder
+    return {"homogeneous": Homogeneous, "per_texel": PerTexel, "latent_decoder": LatentDecoder}
+
+
+BUILTIN_NAMES = ("homogeneous", "per_texel", "latent_decoder")
 
 
 def from_preset(table: dict) -> MaterialModel:
     """A model from a preset table (``models/*.toml``): ``model = "per_texel"`` plus its options."""
     t = dict(table)
     name = t.pop("model", None)
-    if name not in BUILTIN:
-        raise InputError(f"unknown model {name!r} in the preset", fix=f"set model = one of {', '.join(BUILTIN)}")
-    cls = BUILTIN[name]
+    if name not in BUILTIN_NAMES:
+        raise InputError(f"unknown model {name!r} in the preset", fix=f"set model = one of {', '.join(BUILTIN_NAMES)}")
+    cls = _builtin()[name]
     allowed = {f for f in cls.__dataclass_fields__}
     extra = set(t) - allowed
     if extra:
         raise InputError(f"unknown key(s) {sorted(extra)} in the {name} model preset", fix=f"allowed: {sorted(allowed)}")
+    if not issubclass(cls, MaterialModel):
+        try:
+            return cls(**t)
+        except TypeError as e:
+            raise InputError(f"bad value in the {name} model preset: {e}") from None
     if "roughness_range" in t:
         t["roughness_range"] = tuple(t["roughness_range"])
     if "prior" in t:
