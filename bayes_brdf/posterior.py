@@ -18,6 +18,8 @@ import torch
 from torch import Tensor
 
 from .errors import InputError
+from .models.base import MAPS, offers_maps
+from .render.maps import SVBRDF
 
 FORMAT = "bayes-brdf-posterior/1"
 
@@ -96,11 +98,45 @@ class Posterior:
         return self._site(site).mean(0)
 
     def std(self, site: str | None = None):
-        """Parameter-space uncertainty (Eq. 9) of ``site``, or ``{site: std}`` for all sites."""
+        """Uncertainty (Eq. 9): the std over the particles, Bessel-corrected, **in map space**.
+
+        ``std()`` with a model that offers ``maps`` (every built-in): ``{map: std}`` for each of albedo,
+        roughness, specular and normal that the sites decide (fixed maps are left out). Where a map is
+        itself a site (``per_texel``'s albedo, roughness, specular) its std is that site's (same numbers,
+        the site's own shape); otherwise it is over the decoded maps (``per_texel``'s normals from their
+        slopes; all four maps of ``latent_decoder``, decoded from W+ and noise). ``std(name)``: a site's
+        std, or a map's. Without a model: ``{site: std}``.
+        """
         if site is None:
-            return {k: self.std(k) for k in self.particles}
-        x = self._site(site)
+            if offers_maps(self.model):
+                return self.map_std()
+            return {k: self._std(self.particles[k]) for k in self.particles}
+        if site in self.particles:
+            return self._std(self.particles[site])
+        if site in MAPS and offers_maps(self.model):
+            out = self.map_std()
+            if site in out:
+                return out[site]
+            raise InputError(f"the map '{site}' is fixed in this model (no uncertainty)",
+                             fix=f"maps with an uncertainty: {', '.join(out)}")
+        return self._std(self._site(site))
+
+    @staticmethod
+    def _std(x: Tensor) -> Tensor:
         return x.std(0) if x.shape[0] > 1 else torch.zeros_like(x[0])
+
+    def map_std(self) -> dict[str, Tensor]:
+        """``{map: std over the particles}`` for the maps the sites decide (see :meth:`std`)."""
+        out, decoded = {}, None
+        for name in MAPS:
+            if name in self.particles:
+                out[name] = self._std(self.particles[name])
+                continue
+            decoded = decoded if decoded is not None else self.maps("all")
+            t = getattr(decoded, name)
+            if t.dim() == 4 and t.shape[0] == self.num_particles:     # depends on the particle
+                out[name] = self._std(t)
+        return out
 
     @property
     def surface(self):
@@ -182,13 +218,18 @@ class Posterior:
         return dict(self.map_values)
 
     def maps(self, which="mean"):
-        """The model's SVBRDF for ``which`` = ``"mean"``, ``"map"``, a particle index, or ``"all"`` (``[n, ...]`` maps)."""
-        if self.model is None or not hasattr(self.model, "maps"):
+        """The model's SVBRDF for ``which``: ``"mean"`` (the mean over the particles of their maps, normals
+        renormalised: Eq. 9's mean in map space), ``"map"``, a particle index, or ``"all"`` (``[n, ...]`` maps)."""
+        if not offers_maps(self.model):
             raise InputError("this posterior has no material model attached", fix="pass model= or use bb.infer")
         if which == "all":
             return self.model.maps(self.particles)
-        vals = self.mean() if which == "mean" else self.map() if which == "map" else \
-            {k: v[int(which)] for k, v in self.particles.items()}
+        if which == "mean":
+            m = self.model.maps(self.particles)
+            avg = lambda t: t.mean(0) if t.dim() == 4 and t.shape[0] == self.num_particles else t  # noqa: E731
+            n = avg(m.normal)
+            return SVBRDF(avg(m.albedo), avg(m.roughness), avg(m.specular), n / n.norm(dim=0, keepdim=True))
+        vals = self.map() if which == "map" else {k: v[int(which)] for k, v in self.particles.items()}
         return self.model.maps({k: v[None] for k, v in vals.items()}).particle(0)
 
     # ------------------------------------------------------------------ files
