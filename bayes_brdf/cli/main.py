@@ -15,6 +15,7 @@ Commands (``bayes-brdf COMMAND --help`` for each):
 * ``demo``             -- the whole story on a synthetic material, with an HTML report.
 * ``compare``          -- the sampler comparison table (the paper's Table 1).
 * ``experiment NAME``  -- one of the paper's figures on synthetic data (``list`` shows them).
+* ``train-decoder``    -- train the ``latent_decoder`` model's generator on the procedural materials.
 
 Bad input prints ONE line ``bayes-brdf: error: ...`` and exits with code 2.
 """
@@ -37,6 +38,7 @@ from . import experiment as experiment_cmd
 from . import fit as fit_cmd
 from . import recommend as recommend_cmd
 from . import demo as demo_cmd
+from . import train_decoder as train_decoder_cmd
 
 
 class _Parser(argparse.ArgumentParser):
@@ -248,6 +250,7 @@ def build_parser() -> argparse.ArgumentParser:
     demo_cmd.add_parser(sub)
     compare_cmd.add_parser(sub)
     experiment_cmd.add_parser(sub)
+    train_decoder_cmd.add_parser(sub)
     return p
 
 
