@@ -12,7 +12,7 @@ draws from it, every draw from an explicit seeded generator:
 * **colour** -- hue rotation, saturation and brightness of the diffuse albedo (kornia,
   on the gamma-encoded albedo), and a gray-level change of the specular albedo;
 * **blends** -- with probability ``blend``, two materials mixed by a smooth random mask
-  (albedo, roughness, specular linearly; normals by their slopes).
+  (every channel linearly, the normals' ``x, y`` included; ``z`` follows from them when decoded).
 
 Held-out materials use seeds from :data:`HELD_OUT_SEED` on, which no base set below that many
 materials per generator reaches.
@@ -77,7 +77,7 @@ def dihedral(x: Tensor, k: int) -> Tensor:
 
 
 def _renormal_xy(xy: Tensor) -> Tensor:
-    """Normal x, y rescaled so ``x² + y² < 1`` (after averaging, which shortens unit normals)."""
+    """Normal ``x, y`` kept inside ``(-1, 1)`` after averaging (decoding clamps ``x² + y²`` below 1 anyway)."""
     return xy.clamp(-0.999, 0.999)
 
 
