@@ -1,4 +1,4 @@
-"""Ship the top-level preset folders (models/, samplers/) inside the wheel.
+"""Ship the top-level preset folders (models/, samplers/) inside the wheel (TOML presets and decoder weights).
 
 They stay plain TOML folders at the repository root (not importable packages);
 at build time they are copied to ``bayes_brdf/presets/<folder>/`` in the wheel.
@@ -21,7 +21,7 @@ class BuildWithPresets(build_py):
             src = ROOT / folder
             dst = Path(self.build_lib) / "bayes_brdf" / "presets" / folder
             dst.mkdir(parents=True, exist_ok=True)
-            for f in sorted(src.glob("*.toml")):
+            for f in sorted([*src.glob("*.toml"), *src.glob("*.safetensors")]):
                 self.copy_file(str(f), str(dst / f.name))
 
 

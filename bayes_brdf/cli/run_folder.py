@@ -57,6 +57,9 @@ def model_table(a, obs) -> dict:
     table.update(dict(a.model_param))
     if table.get("model") == "per_texel" and "resolution" not in dict(a.model_param):
         table["resolution"] = obs.resolution[0]
+    if table.get("model") == "latent_decoder" and "weights_digest" not in table:
+        from ..models.latent_decoder import weights_digest   # other weights, another run (and a refused resume)
+        table["weights_digest"] = weights_digest(table.get("weights", "latent_decoder_64"))
     return table
 
 

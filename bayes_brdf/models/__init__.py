@@ -2,13 +2,21 @@
 
 A model is any Pyro function ``model(data)`` of a :class:`ModelData` whose latent
 sites are the material parameters and which ends with :func:`observe`. The
-built-ins are :func:`homogeneous` and :func:`per_texel`; a user's own model is
-just another such function (see ``docs/models.md``).
+built-ins are :func:`homogeneous`, :func:`per_texel` and :func:`latent_decoder` (maps decoded
+by a StyleGAN2 generator from W+ and noise); a user's own model is just another such function.
+What downstream code needs from a model beyond that is the small protocol of
+:mod:`bayes_brdf.models.base` (``maps``, ``latent_sites``, ``noise_sigma``, ``initial_values``,
+``to_dict``; see ``docs/models.md``).
 """
 from . import priors
 from .data import ModelData
 from .likelihood import RenderedImages, observe
+from .base import MAPS, ObservedModel, offers_maps
+from .latent_decoder import LatentDecoder, latent_decoder
 from .material import Homogeneous, MaterialModel, PerTexel, from_preset, homogeneous, per_texel
+from .materialgan_checkpoint import load_materialgan_checkpoint
+from .stylegan import Generator, GeneratorConfig
 
-__all__ = ["priors", "ModelData", "RenderedImages", "observe", "homogeneous", "per_texel", "MaterialModel",
-           "Homogeneous", "PerTexel", "from_preset"]
+__all__ = ["priors", "ModelData", "RenderedImages", "observe", "homogeneous", "per_texel", "latent_decoder",
+           "MaterialModel", "ObservedModel", "Homogeneous", "PerTexel", "LatentDecoder", "from_preset", "MAPS",
+           "offers_maps", "Generator", "GeneratorConfig", "load_materialgan_checkpoint"]
