@@ -23,6 +23,7 @@ EXPERIMENTS = {
     "fig3": "bayes_brdf.experiments.fig3_observations",
     "fig4": "bayes_brdf.experiments.fig4_image_space",
     "fig5": "bayes_brdf.experiments.fig5_prior",
+    "fig6": "bayes_brdf.experiments.fig6_latent",
     "fig7": "bayes_brdf.experiments.fig7_guided",
 }
 

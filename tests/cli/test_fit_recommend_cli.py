@@ -192,3 +192,20 @@ def test_fit_heldout_maps_share_one_range_and_draw_clipped_pixels(shared_data, t
         png = np.asarray(Image.open(out / "heldout" / f"view_01_{kind}.png").convert("RGB")).reshape(-1, 3)
         colour = np.array([int(MASK_COLOURS[0][i:i + 2], 16) for i in (1, 3, 5)])
         assert (np.abs(png.astype(int) - colour).sum(1) <= 3).sum() > 20      # the clipped pixels, drawn
+
+
+@pytest.mark.filterwarnings("ignore::bayes_brdf.errors.ConvergenceWarning")
+def test_fit_and_recommend_with_the_latent_decoder_write_map_space_std(bundle, tmp_path):
+    out = tmp_path / "fit_latent"
+    assert main(["fit", str(bundle), "--views", "0,2,4", "--resolution", "12", "--steps", "3", "--particles", "4",
+                 "--model", "latent_decoder", "--model-param", "project_steps=5", "--out", str(out)]) == 0
+    s = json.loads((out / "summary.json").read_text())
+    assert s["model"]["model"] == "latent_decoder" and len(s["model"]["weights_digest"]) == 16
+    for name in ("albedo", "roughness", "specular", "normal"):      # Eq. 9 on the decoded maps, not on W+
+        assert (out / "std" / f"{name}.exr").is_file(), name
+    assert not (out / "std" / "w_plus.exr").exists()
+    post = Posterior.load(out / "posterior.safetensors")
+    assert post.model is not None and post.maps("mean").albedo.shape == (3, 64, 64)
+    rec = tmp_path / "rec"
+    assert main(["recommend", str(bundle), "--views", "0,2,4", "--posterior", str(out / "posterior.safetensors"),
+                 "--k", "1", "--out", str(rec)]) == 0
