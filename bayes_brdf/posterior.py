@@ -125,16 +125,17 @@ class Posterior:
     def _std(x: Tensor) -> Tensor:
         return x.std(0) if x.shape[0] > 1 else torch.zeros_like(x[0])
 
+    def _varies(self, t: Tensor) -> bool:
+        """Whether a decoded map ``t`` has the particle dimension (a fixed map has none)."""
+        return t.dim() == 4 and t.shape[0] == self.num_particles
+
     def map_std(self) -> dict[str, Tensor]:
         """``{map: std over the particles}`` for the maps the sites decide (see :meth:`std`)."""
-        out, decoded = {}, None
+        out = {}
         for name in MAPS:
             if name in self.particles:
                 out[name] = self._std(self.particles[name])
-                continue
-            decoded = decoded if decoded is not None else self.maps("all")
-            t = getattr(decoded, name)
-            if t.dim() == 4 and t.shape[0] == self.num_particles:     # depends on the particle
+            elif self._varies(t := getattr(self.maps("all"), name)):
                 out[name] = self._std(t)
         return out
 
@@ -223,14 +224,24 @@ class Posterior:
         if not offers_maps(self.model):
             raise InputError("this posterior has no material model attached", fix="pass model= or use bb.infer")
         if which == "all":
-            return self.model.maps(self.particles)
+            return self._decoded()
         if which == "mean":
-            m = self.model.maps(self.particles)
-            avg = lambda t: t.mean(0) if t.dim() == 4 and t.shape[0] == self.num_particles else t  # noqa: E731
+            m = self._decoded()
+            avg = lambda t: t.mean(0) if self._varies(t) else t  # noqa: E731
             n = avg(m.normal)
             return SVBRDF(avg(m.albedo), avg(m.roughness), avg(m.specular), n / n.norm(dim=0, keepdim=True))
         vals = self.map() if which == "map" else {k: v[int(which)] for k, v in self.particles.items()}
         return self.model.maps({k: v[None] for k, v in vals.items()}).particle(0)
+
+    def _decoded(self):
+        """Every particle's maps, decoded once per (model, particles): through a generator that is the
+        costly part of ``std()`` and ``maps("mean")``, which the CLI calls in turn."""
+        key = (id(self.model), id(self.particles))
+        hit = self.__dict__.get("_decoded_cache")
+        if hit is None or hit[0] != key:
+            with torch.no_grad():
+                hit = self.__dict__["_decoded_cache"] = (key, self.model.maps(self.particles))
+        return hit[1]
 
     # ------------------------------------------------------------------ files
     def save(self, path) -> Path:

@@ -126,11 +126,12 @@ def write_posterior(post, out: Path) -> dict:
     post.save(out / "posterior.safetensors")
     save_svbrdf(post.maps("mean").to("cpu"), out / "mean")
     save_svbrdf(post.maps("map").to("cpu"), out / "map")
-    for site, s in post.std().items():
+    std = post.std()
+    for site, s in std.items():
         img = s.float().cpu()
         img = img[:, None, None] if img.dim() == 1 else img
         write_map(out / "std" / site, img, title=f"posterior std of {site} (Eq. 9)")
-    return {k: float(v.mean()) for k, v in post.std().items()}
+    return {k: float(v.mean()) for k, v in std.items()}
 
 
 def run(a) -> int:

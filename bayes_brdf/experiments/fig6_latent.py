@@ -59,7 +59,8 @@ def _psnr(a: torch.Tensor, b: torch.Tensor) -> float:
 
 
 def score(post, views, images, surface, mask=None) -> dict:
-    """Eq. 11 std vs the MAP's error, predictive coverage, MAP error on ``views`` with observed ``images``."""
+    """``(numbers, std, error, MAP render)`` on ``views`` with observed ``images``: Eq. 11 std vs the MAP's
+    error, predictive coverage, MAP error; ``mask [V, H, W]`` selects the pixels scored."""
     F, std, _ = predictive_cdf(post, views, images, surface)
     pred = render(post.maps("map"), views, surface)[0]
     y = images.to(pred)
@@ -156,14 +157,12 @@ def run(out, preset: str = "small", seed: int = 0, progress: bool = False, **ove
         fobs, hobs = full.subset(fit_idx), full.subset(held_idx)
         cfits = _fit_all(fobs, cfg, seed, progress)
         cap = {}
+        mask = torch.ones(hobs.images.shape[:3], dtype=torch.bool)
+        if hobs.mask is not None:
+            mask &= hobs.mask
+        if hobs.saturated is not None:
+            mask &= ~hobs.saturated
         for name, (post, secs) in cfits.items():
-            mask = None
-            if hobs.mask is not None or hobs.saturated is not None:
-                mask = torch.ones(hobs.images.shape[:3], dtype=torch.bool)
-                if hobs.mask is not None:
-                    mask &= hobs.mask
-                if hobs.saturated is not None:
-                    mask &= ~hobs.saturated
             s, std, err, pred = score(post, hobs.views, hobs.images, hobs.surface, mask)
             cap[name] = {**s, "seconds": round(secs, 1), "map_std": _map_std(post), "noise_sigma": post.noise_sigma,
                          "converged": (post.diagnostics or {}).get("converged"), "held_out": held_idx}

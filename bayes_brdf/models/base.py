@@ -46,10 +46,11 @@ def offers_maps(model) -> bool:
 
 
 def describe(model):
-    """A model's configuration for files and identities: ``to_dict()``, else the function's name."""
-    if callable(getattr(model, "to_dict", None)):
-        return model.to_dict()
-    return getattr(model, "__name__", str(model))
+    """A model's configuration as the posterior records it: ``to_dict()`` (as in the run identity,
+    :func:`bayes_brdf.identity.model_description`), else the function's name."""
+    from ..identity import model_description
+    d = model_description(model)
+    return d if isinstance(d, dict) else getattr(model, "__name__", str(model))
 
 
 def infers_sigma(model) -> bool:

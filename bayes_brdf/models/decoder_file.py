@@ -60,6 +60,17 @@ def read_header(path) -> dict:
     return head
 
 
+def is_decoder_file(path) -> bool:
+    """Whether ``path`` is a bayes-brdf decoder file (else it may be a MaterialGAN-layout checkpoint)."""
+    if Path(path).suffix != ".safetensors":
+        return False
+    try:
+        read_header(path)
+    except InputError:
+        return False
+    return True
+
+
 def load_decoder(path, *, device=None, dtype=torch.float32) -> Generator:
     """The :class:`Generator` in ``path``, in eval mode with gradients off, with ``w_std`` set."""
     from safetensors.torch import load_file

@@ -108,17 +108,9 @@ def _digest(path: Path) -> str:
 
 def load_generator(weights) -> tuple:
     """``(generator, noise maps, digest)`` from a bayes-brdf decoder file or a MaterialGAN-layout checkpoint."""
-    from .decoder_file import FORMAT, load_decoder
+    from .decoder_file import is_decoder_file, load_decoder
     p = weights_path(weights)
-    ours = False
-    if p.suffix == ".safetensors":
-        from safetensors import safe_open
-        try:
-            with safe_open(str(p), framework="pt") as f:
-                ours = FORMAT in ((f.metadata() or {}).get("bayes-brdf", ""))
-        except Exception:  # noqa: BLE001
-            raise InputError("unreadable decoder weights", where=p) from None
-    if ours:
+    if is_decoder_file(p):
         g = load_decoder(p)
         noise = None
     else:

@@ -229,15 +229,9 @@ class Generator(nn.Module):
         return self.cfg.noise_shapes()
 
     def zero_noise(self, n: int, like: Tensor | None = None) -> list[Tensor]:
-        p = self.const_like(like)
+        """Zero noise maps ``[n, 1, r, r]`` on ``like``'s dtype and device (default: the generator's)."""
+        p = self.synthesis.const if like is None else like
         return [torch.zeros(n, 1, *s, dtype=p.dtype, device=p.device) for s in self.noise_shapes()]
-
-    def random_noise(self, n: int, generator: torch.Generator | None = None) -> list[Tensor]:
-        p = self.const_like(None)
-        return [torch.randn(n, 1, *s, generator=generator, dtype=p.dtype, device=p.device) for s in self.noise_shapes()]
-
-    def const_like(self, like):
-        return like if like is not None else self.synthesis.const
 
     def forward(self, ws: Tensor, noise: list[Tensor]) -> Tensor:
         """Channel-space maps ``[n, 9, R, R]`` from W+ ``[n, L, w_dim]`` and noise maps ``[n, 1, r, r]``."""

@@ -52,13 +52,6 @@ def _lr(cfg: TrainConfig, step: int) -> float:
     return cfg.lr * (0.1 + 0.45 * (1 + math.cos(math.pi * t)))
 
 
-def _w_stats(g: Generator, seed: int, n: int = 8192) -> tuple[torch.Tensor, torch.Tensor]:
-    with torch.no_grad():
-        z = torch.randn(n, g.cfg.z_dim, generator=torch.Generator().manual_seed(seed + 7))
-        w = g.mapping(z)
-    return w.mean(0), w.std(0)
-
-
 def train_decoder(cfg: TrainConfig, out: Path, *, checkpoint: Path | None = None, checkpoint_every: int = 100,
                   log=print) -> dict:
     """Train, write the weights to ``out`` and the curve to ``out`` with ``.curve.json``; return the summary."""
@@ -110,7 +103,7 @@ def train_decoder(cfg: TrainConfig, out: Path, *, checkpoint: Path | None = None
                         "data_rng": data_rng.get_state(), "noise_rng": noise_rng.get_state(), "curve": curve,
                         "step": step + 1, "seconds": time.perf_counter() - t0}, tmp)
             tmp.replace(checkpoint)
-    w_avg, w_std = _w_stats(g, cfg.seed)
+    w_avg, w_std = g.w_stats(seed=cfg.seed)
     g.w_avg.copy_(w_avg)
     total = time.perf_counter() - t0
     summary = {"config": asdict(cfg), "method": "vae", "seconds": round(total + data_seconds, 1),
