@@ -12,8 +12,9 @@ with the views' resolution chosen so the plane has the same number of pixels as 
 ones: views of the texture's resolution (one pixel per texel), as many as make the mesh's pixel count
 (5 views of 128^2 for the bunny's 81k valid pixels), so both rows have the same texels (the same
 latent dimension) and the same pixels. Both rows: ``Potential.value_and_grad`` (energies and
-gradients of all particles) and one ``spos`` step, median ms over repeats after warm-up; the ratio
-mesh / plane is the number the issue bounds (at most 1.5).
+gradients of all particles) and one ``spos`` step, median ms over repeats after warm-up, the two rows
+timed in turn in each round; the ratio (the median over rounds of mesh / plane) is the number the issue
+bounds (at most 1.5).
 """
 from __future__ import annotations
 
@@ -46,15 +47,20 @@ def setup(surface, views, tex, particles):
     return data, pot, smp, state
 
 
-def timeit(fn, repeats, warmup=2):
+def interleaved(fns, repeats, warmup=2):
+    """Median ms of each of ``fns`` over ``repeats`` rounds that run each once, in turn (so a machine that
+    slows down or speeds up mid-run moves every row alike), and the per-round ratios to the last one."""
     for _ in range(warmup):
-        fn()
-    ts = []
+        for fn in fns:
+            fn()
+    ts = [[] for _ in fns]
     for _ in range(repeats):
-        t = time.perf_counter()
-        fn()
-        ts.append(time.perf_counter() - t)
-    return statistics.median(ts) * 1e3
+        for t, fn in zip(ts, fns):
+            t0 = time.perf_counter()
+            fn()
+            t.append(time.perf_counter() - t0)
+    ratios = [statistics.median(a / b for a, b in zip(t, ts[-1])) for t in ts]
+    return [statistics.median(t) * 1e3 for t in ts], ratios
 
 
 def main(argv=None):
@@ -64,29 +70,27 @@ def main(argv=None):
     ap.add_argument("--res", type=int, default=128)
     ap.add_argument("--tex", type=int, default=128)
     ap.add_argument("--particles", type=int, default=20)
-    ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--repeats", type=int, default=15)
     a = ap.parse_args(argv)
     mesh = {"bunny": lambda: Mesh.load(BUNNY, up="y"), "sphere": Mesh.sphere, "bowl": Mesh.bowl}[a.mesh]()
     mviews = collocated_views(a.views, 2.6 * mesh.radius, resolution=a.res, target=mesh.center, fov=45,
                               method="sobol", power=(2.6 * mesh.radius) ** 2)
-    rows = {}
     md, mpot, msmp, mstate = setup(mesh, mviews, a.tex, a.particles)
     pixels = int(md.weight.count_nonzero())
     nplane = max(1, round(pixels / a.tex ** 2))
     pviews = collocated_views(nplane, 15.0, camera="rectified", resolution=a.tex, power=1500.0, method="sobol")
     pd, ppot, psmp, pstate = setup(PlanarSample(10.0), pviews, a.tex, a.particles)
-    for name, pot, smp, state in (("mesh", mpot, msmp, mstate), ("plane", ppot, psmp, pstate)):
-        rng = torch.Generator().manual_seed(0)
-        vg = timeit(lambda: pot.value_and_grad(state.z), a.repeats)
-        st = timeit(lambda: smp.step(state, 0, pot, rng), a.repeats)
-        rows[name] = (vg, st)
+    rng = torch.Generator().manual_seed(0)
+    vg, vg_ratio = interleaved([lambda: mpot.value_and_grad(mstate.z), lambda: ppot.value_and_grad(pstate.z)], a.repeats)
+    st, st_ratio = interleaved([lambda: msmp.step(mstate, 0, mpot, rng), lambda: psmp.step(pstate, 0, ppot, rng)],
+                               a.repeats)
     print(f"{a.mesh}: {mesh.num_faces} faces, texture {a.tex}^2, {a.views} views of {a.res}^2 -> {pixels} valid pixels; "
           f"plane: {nplane} rectified views of {a.tex}^2 = {nplane * a.tex ** 2} pixels; {a.particles} particles, "
           f"{torch.get_num_threads()} threads")
     print(f"{'':8s}{'value_and_grad ms':>20s}{'spos step ms':>16s}")
-    for k, (vg, st) in rows.items():
-        print(f"{k:8s}{vg:20.1f}{st:16.1f}")
-    print(f"{'ratio':8s}{rows['mesh'][0] / rows['plane'][0]:20.2f}{rows['mesh'][1] / rows['plane'][1]:16.2f}")
+    for k, name in enumerate(("mesh", "plane")):
+        print(f"{name:8s}{vg[k]:20.1f}{st[k]:16.1f}")
+    print(f"{'ratio':8s}{vg_ratio[0]:20.2f}{st_ratio[0]:16.2f}   (median of the rounds' mesh / plane)")
 
 
 if __name__ == "__main__":
