@@ -21,8 +21,6 @@ from __future__ import annotations
 
 import ctypes
 import math
-import threading
-import warnings
 from pathlib import Path
 
 import numpy as np
@@ -33,33 +31,21 @@ from ..errors import InputError
 
 ESTIMATORS = ("mc", "quadrature")
 _SRC = Path(__file__).with_name("_kde_entropy.c")
-_LOCK = threading.Lock()
-_LIBS: dict = {}
-_FAILED = False
+_NMAX: dict = {}
 
 
 def _lib(dtype):
-    global _FAILED
-    import os
-
-    from ..render.native import build_library
-    real = {torch.float32: "float", torch.float64: "double"}.get(dtype)
-    if _FAILED or real is None or os.environ.get("BAYES_BRDF_NO_NATIVE"):
+    """``(the native entropy function, its particle limit)`` for ``dtype``, or ``None`` (the torch path runs)."""
+    from ..render.native import native_function
+    fn = native_function(_SRC, "bb_kde_entropy", dtype,
+                         [ctypes.c_int64] * 5 + [ctypes.c_void_p] * 5 + [ctypes.c_double] * 2 + [ctypes.c_void_p] * 2,
+                         extra_flags=("-ffast-math",), fallback="torch")
+    if fn is None:
         return None
-    with _LOCK:
-        if real not in _LIBS:
-            try:
-                lib = ctypes.CDLL(str(build_library(_SRC, real, "bb_kde", ("-ffast-math",))))
-            except Exception as e:  # no compiler: the torch path is correct, only slower
-                _FAILED = True
-                warnings.warn(f"bayes_brdf: native entropy kernel unavailable ({str(e)[:200]}); using torch")
-                return None
-            fn = lib.bb_kde_entropy
-            fn.restype = None
-            fn.argtypes = [ctypes.c_int64] * 5 + [ctypes.c_void_p] * 5 + [ctypes.c_double] * 2 + [ctypes.c_void_p] * 2
-            lib.bb_kde_nmax.restype = ctypes.c_int64
-            _LIBS[real] = (fn, int(lib.bb_kde_nmax()))
-    return _LIBS[real]
+    if dtype not in _NMAX:
+        nmax = native_function(_SRC, "bb_kde_nmax", dtype, [], restype=ctypes.c_int64, extra_flags=("-ffast-math",))
+        _NMAX[dtype] = int(nmax())
+    return fn, _NMAX[dtype]
 
 
 def hermite_nodes(nodes: int) -> tuple[Tensor, Tensor]:

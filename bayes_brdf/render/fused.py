@@ -161,7 +161,7 @@ def compiled_kernel(kd, r, ks, nl, nv, nh, vh, scale, ks_factor: bool = True, to
     (a mesh's pixels); the native kernel then gathers and scatters the texels itself."""
     if taps is not None:
         if _texel_route(kd, r, ks, nl, nv, nh, vh, scale, taps) == "native":
-            return native.NativeShade.apply(kd, r, ks, nl, nv, nh, vh, scale, ks_factor, (taps.idx, taps.w, taps.grid))
+            return native.NativeShade.apply(kd, r, ks, nl, nv, nh, vh, scale, ks_factor, taps)
         kd, r, ks = _looked_up(taps, kd, r, ks)
     route = _route(kd, r, ks, nl, nv, nh, vh, scale, torch_compile)
     if route == "native":
@@ -312,8 +312,7 @@ def compiled_loss(kd, r, ks, nl, nv, nh, vh, scale, y, wgt, ks_factor: bool = Tr
     if taps is not None:
         if not (y.requires_grad or wgt.requires_grad) and \
                 _texel_route(kd, r, ks, nl, nv, nh, vh, scale, taps) == "native":
-            return native.NativeLoss.apply(kd, r, ks, nl, nv, nh, vh, scale, y, wgt, ks_factor, l1,
-                                           (taps.idx, taps.w, taps.grid))
+            return native.NativeLoss.apply(kd, r, ks, nl, nv, nh, vh, scale, y, wgt, ks_factor, l1, taps)
         kd, r, ks = _looked_up(taps, kd, r, ks)
     route = "eager" if y.requires_grad or wgt.requires_grad else _route(kd, r, ks, nl, nv, nh, vh, scale,
                                                                            torch_compile)

@@ -150,8 +150,9 @@ class GBuffer:
         return replace(self, **{f.name: getattr(self, f.name)[t] for f in fields(self)
                                 if isinstance(getattr(self, f.name), Tensor)})
 
-    def gather(self, pixels: Tensor) -> "GBuffer":
-        """The pixels where ``pixels [V, H, W]`` is True, as one view of ``1 x K`` pixels (raster order).
+    def gather(self, pixels: Tensor, order: Tensor | None = None) -> "GBuffer":
+        """The pixels where ``pixels [V, H, W]`` is True, as one view of ``1 x K`` pixels: in raster order, or
+        in ``order`` (a permutation of the ``K`` pixels, e.g. :func:`~bayes_brdf.render.texels.texture_order`).
 
         For shading a sparse set of pixels (e.g. the saturated ones) without
         shading whole views. Pixels of aligned views keep their texel's flat
@@ -163,6 +164,8 @@ class GBuffer:
             raise InputError(f"pixel selection has shape {tuple(pixels.shape)}, expected "
                              f"{(self.num_views, *self.resolution)}")
         v, r, c = pixels.nonzero(as_tuple=True)
+        if order is not None:
+            v, r, c = v[order], r[order], c[order]
 
         def pick(t: Tensor) -> Tensor:
             if t.dim() >= 4 and tuple(t.shape[-2:]) == self.resolution:      # [V, ..., H, W]
@@ -180,15 +183,16 @@ class GBuffer:
                if isinstance(getattr(src, f.name), Tensor)}
         return replace(src, aligned=False, gathered=True, **out)
 
-    def pixels_slice(self, start: int, stop: int) -> "GBuffer":
-        """Pixels ``start:stop`` of a gathered ``1 x K`` G-buffer (:meth:`gather`), e.g. those of some of its views."""
+    def pixels(self, index: Tensor | slice) -> "GBuffer":
+        """Pixels ``index`` (a slice or indices) of a gathered ``1 x K`` G-buffer (:meth:`gather`), e.g. those of
+        some of its views."""
         if not self.gathered:
-            raise InputError("pixels_slice needs a gathered G-buffer", fix="call gather() first")
+            raise InputError("pixels needs a gathered G-buffer", fix="call gather() first")
         out = {}
         for f in fields(self):
             t = getattr(self, f.name)
             if isinstance(t, Tensor):
-                out[f.name] = t[:, :, start:stop] if f.name == "uv" else t[..., start:stop]
+                out[f.name] = t[:, :, index] if f.name == "uv" else t[..., index]
         return replace(self, **out)
 
     def texel_index(self, resolution) -> Tensor:

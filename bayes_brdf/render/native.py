@@ -1,14 +1,22 @@
-"""Native CPU shading kernels (``_native_kernels.c``), compiled on first use.
+"""Native CPU shading kernels, compiled on first use; the one loader of the package's C libraries.
 
-The fused per-pixel work of :mod:`.fused` as one C loop nest (OpenMP over
-particles x pixel blocks, views and lights inside, SIMD over pixels), so the
-maps are read once and gradients accumulate in registers rather than in
-per-view temporaries. Used by the ``"compiled"`` backend for CPU tensors when
-a C compiler is available (``cc``/``gcc``), else the ``torch.compile`` path is
-used. Built once per source version into ``$XDG_CACHE_HOME/bayes_brdf`` (or
-``~/.cache/bayes_brdf``); set ``BAYES_BRDF_NO_NATIVE=1`` to disable.
+The fused per-pixel work of :mod:`.fused` as C loop nests, so the maps are read once and gradients
+accumulate in registers rather than in per-view temporaries:
 
-Tests check it against the eager reference in float64 (``tests/render/test_fused.py``).
+* ``_native_kernels.c``: pixels that are texels (rectified views of the plane); OpenMP over pixel blocks,
+  views and lights inside, SIMD over pixels.
+* ``_native_texels.c``: pixels that read texel maps through bilinear taps (a mesh's pixels); SIMD over
+  particles, so a pixel's four texels are vector loads and its gradients vector adds, in fixed chunks of
+  pixels (:class:`~bayes_brdf.render.texels.ChunkPlan`) so that its sums do not depend on the thread count.
+
+Both share the BRDF terms of ``_native_brdf.h``. Used by the ``"compiled"`` backend for CPU tensors when a
+C compiler is available (``cc``/``gcc``), else the ``torch.compile`` path is used. Built once per source
+version into ``$XDG_CACHE_HOME/bayes_brdf`` (or ``~/.cache/bayes_brdf``); set ``BAYES_BRDF_NO_NATIVE=1`` to
+disable. :func:`native_function` loads any of the package's C sources (also the entropy kernel of
+:mod:`bayes_brdf.guidance.entropy`).
+
+Tests check both against the eager reference in float64 (``tests/render/test_fused.py``,
+``tests/render/test_texels.py``).
 """
 from __future__ import annotations
 
@@ -16,6 +24,7 @@ import ctypes
 import hashlib
 import os
 import platform
+import re
 import shutil
 import subprocess
 import tempfile
@@ -27,12 +36,12 @@ from pathlib import Path
 import torch
 from torch import Tensor
 
-_SRC = Path(__file__).with_name("_native_kernels.c")
+_DIR = Path(__file__).parent
 _LOCK = threading.Lock()
-_LIBS: dict = {}
-_FAILED = False
+_FUNCTIONS: dict = {}
+_FAILED: set = set()
 MODE_IMAGE_FWD, MODE_IMAGE_BWD, MODE_LOSS = 0, 1, 2
-MAX_LIGHTS = 4  # LMAX in the C source
+MAX_LIGHTS = 4  # LMAX in the C sources
 
 
 def _cache_dir() -> Path:
@@ -40,9 +49,17 @@ def _cache_dir() -> Path:
     return Path(base) / "bayes_brdf"
 
 
-def build_library(src_path: Path, real: str, prefix: str, extra_flags=()) -> Path:
-    """Compile ``src_path`` (with ``-DREAL=real``) into a cached shared library; rebuilt when the source changes."""
+def _with_headers(src_path: Path) -> bytes:
+    """The source and the local headers it includes (``#include "x.h"``): what a build depends on."""
     src = Path(src_path).read_bytes()
+    heads = re.findall(rb'^\s*#\s*include\s*"([^"]+)"', src, flags=re.M)
+    return src + b"".join(_with_headers(Path(src_path).parent / h.decode()) for h in heads)
+
+
+def build_library(src_path: Path, real: str, prefix: str, extra_flags=()) -> Path:
+    """Compile ``src_path`` (with ``-DREAL=real``) into a cached shared library; rebuilt when the source or a
+    local header it includes changes."""
+    src = _with_headers(src_path)
     flags = ["-O3", "-march=native", "-fopenmp", "-fPIC", "-shared", "-fno-math-errno", f"-DREAL={real}",
              *extra_flags]
     if platform.machine().lower() in ("x86_64", "amd64"):
@@ -63,37 +80,49 @@ def build_library(src_path: Path, real: str, prefix: str, extra_flags=()) -> Pat
     return out
 
 
-def _build(real: str) -> Path:
-    return build_library(_SRC, real, "bb_shade")
+def native_function(src_path: Path, symbol: str, dtype: torch.dtype, argtypes, restype=None, extra_flags=(),
+                    fallback: str = "torch"):
+    """The ctypes function ``symbol`` of ``src_path`` built for ``dtype`` (float32/float64), or ``None`` when
+    native kernels are unavailable (``BAYES_BRDF_NO_NATIVE``, no compiler, another dtype). A failed build
+    warns once, naming ``fallback`` (what runs instead), and is not retried."""
+    real = {torch.float32: "float", torch.float64: "double"}.get(dtype)
+    src_path = Path(src_path)
+    if real is None or os.environ.get("BAYES_BRDF_NO_NATIVE") or src_path in _FAILED:
+        return None
+    key = (src_path, symbol, real, tuple(extra_flags))
+    with _LOCK:
+        if key not in _FUNCTIONS:
+            try:
+                lib = ctypes.CDLL(str(build_library(src_path, real, "bb_" + src_path.stem.lstrip("_"), extra_flags)))
+            except Exception as e:  # no compiler, no OpenMP, ...: the fallback still works
+                _FAILED.add(src_path)
+                detail = getattr(e, "stderr", "") or e
+                warnings.warn(f"bayes_brdf: native CPU kernel {src_path.name} unavailable "
+                              f"({str(detail).strip()[:200]}); using {fallback}")
+                return None
+            fn = getattr(lib, symbol)
+            fn.restype = restype
+            fn.argtypes = list(argtypes)
+            _FUNCTIONS[key] = fn
+    return _FUNCTIONS[key]
 
 
 def _lib(dtype: torch.dtype):
-    """The ctypes function for ``dtype`` (float32/float64), or ``None`` when native kernels are unavailable."""
-    global _FAILED
-    if _FAILED or os.environ.get("BAYES_BRDF_NO_NATIVE"):
-        return None
-    real = {torch.float32: "float", torch.float64: "double"}.get(dtype)
-    if real is None:
-        return None
-    with _LOCK:
-        if real not in _LIBS:
-            try:
-                fn = ctypes.CDLL(str(_build(real))).bb_shade
-            except Exception as e:  # no compiler, no OpenMP, ...: the torch.compile path still works
-                _FAILED = True
-                detail = getattr(e, "stderr", "") or e
-                warnings.warn(f"bayes_brdf: native CPU kernels unavailable ({str(detail).strip()[:200]}); "
-                              "using torch.compile kernels")
-                return None
-            fn.restype = None
-            fn.argtypes = [ctypes.c_int64] * 11 + [ctypes.c_void_p] * 18
-            _LIBS[real] = fn
-    return _LIBS[real]
+    """The pixel kernel for ``dtype``, or ``None`` when native kernels are unavailable."""
+    return native_function(_DIR / "_native_kernels.c", "bb_shade", dtype,
+                           [ctypes.c_int64] * 9 + [ctypes.c_void_p] * 16, fallback="torch.compile kernels")
+
+
+def _texel_lib(dtype: torch.dtype):
+    """The texel kernel for ``dtype``, or ``None`` when native kernels are unavailable."""
+    return native_function(_DIR / "_native_texels.c", "bb_shade_texels", dtype,
+                           [ctypes.c_int64] * 12 + [ctypes.c_void_p] * 23, restype=ctypes.c_int,
+                           fallback="sparse torch lookups")
 
 
 def available(t: Tensor) -> bool:
-    """Whether the native kernel can run on tensors like ``t`` (CPU, float32/float64, built OK)."""
-    return t.device.type == "cpu" and _lib(t.dtype) is not None
+    """Whether the native kernels can run on tensors like ``t`` (CPU, float32/float64, built OK)."""
+    return t.device.type == "cpu" and _lib(t.dtype) is not None and _texel_lib(t.dtype) is not None
 
 
 def _ptr(t: Tensor | None):
@@ -102,27 +131,41 @@ def _ptr(t: Tensor | None):
 
 def _call(mode, maps, geo, ks_factor, *, y=None, wgt=None, gout=None, l2=False, need_grad=False, taps=None,
           no_grad=(False, False, False)):
-    """Run the kernel. ``maps = (kd [n,3,P], r [n,P], ks [n,3,P])``, ``geo = (nl, nv, nh2, w, A)``; with
-    ``taps = (idx int32 [P, 4], w [P, 4])`` the maps are texel maps ``[n, 3, T]``, ``[n, T]`` (or one constant
-    texel, ``[n, 3, 1]``) read bilinearly, and ``no_grad`` names maps whose gradients are not wanted."""
+    """Run a kernel. ``maps = (kd [n,3,P], r [n,P], ks [n,3,P])``, ``geo = (nl, nv, nh2, w, A)``; with
+    ``taps`` (:class:`~bayes_brdf.render.texels.Taps` of the ``P`` pixels) the maps are texel maps
+    ``[n, 3, T]``, ``[n, T]`` (or one constant texel, ``[n, 3, 1]``) read bilinearly by the texel kernel, and
+    ``no_grad`` names maps whose gradients are not wanted (returned as zeros).
+
+    Returns ``(images [n, V, 3, P] or None, energies [n, blocks] or None, gradients shaped like the maps)``."""
     kd, r, ks = maps
     nl, nv, nh2, w, amp = geo
     n = r.shape[0]
+    V, L, P = nl.shape
+    dt = kd.dtype
+    grad = mode == MODE_IMAGE_BWD or need_grad
+    out = torch.empty(n, V, 3, P, dtype=dt) if mode == MODE_IMAGE_FWD else None
+    nt = torch.get_num_threads()
+    if taps is None:
+        nb = (P + 63) // 64
+        epart = torch.empty(n, nb, dtype=torch.float64) if mode == MODE_LOSS else None
+        grads = [torch.empty_like(m) for m in maps] if grad else [None, None, None]
+        _lib(dt)(mode, n, V, L, P, int(ks_factor), int(l2), int(need_grad), nt,
+                 *map(_ptr, (kd, r, ks, nl, nv, nh2, w, amp, y, wgt, gout, out, epart, *grads)))
+        return out, epart, grads
     T = max(m.shape[-1] for m in maps)
     flags = sum(1 << k for k, m in enumerate(maps) if m.shape[-1] == 1 and T > 1) + \
         sum(8 << k for k, f in enumerate(no_grad) if f)
-    V, L, P = nl.shape
-    dt = kd.dtype
-    nb = (P + 63) // 64
-    out = torch.empty(n, V, 3, P, dtype=dt) if mode == MODE_IMAGE_FWD else None
-    epart = torch.empty(n, nb, dtype=torch.float64) if mode == MODE_LOSS else None
-    new = torch.zeros_like if taps is not None else torch.empty_like     # taps: gradients scatter-add
-    grads = [new(kd), new(r), new(ks)] if mode == MODE_IMAGE_BWD or need_grad else [None, None, None]
-    tidx, tw = taps if taps is not None else (None, None)
-    _lib(dt)(mode, n, V, L, P, int(ks_factor), int(l2), int(need_grad), torch.get_num_threads(), T, flags,
-             *map(_ptr, (tidx, tw, kd, r, ks, nl, nv, nh2, w, amp, y, wgt, gout, out, epart, *grads)))
+    plan = taps.plan
+    epart = torch.empty(n, plan.nchunk, dtype=torch.float64) if mode == MODE_LOSS else None
+    grads = [(torch.zeros_like if f else torch.empty_like)(m) for m, f in zip(maps, no_grad)] if grad \
+        else [None, None, None]
+    status = _texel_lib(dt)(mode, n, V, L, P, int(ks_factor), int(l2), int(need_grad), nt, T, flags, plan.nchunk,
+                            *map(_ptr, (taps.idx, taps.w, plan.cstart, plan.uoff, plan.lidx, plan.rptr, plan.rsrc,
+                                        kd, r, ks, nl, nv, nh2, w, amp, y, wgt, gout, out, epart, *grads)))
+    if status:
+        raise MemoryError(f"the native texel kernel could not allocate its scratch memory ({n} particles, "
+                          f"{T} texels, {P} pixels)")
     return out, epart, grads
-
 
 def _flat(t: Tensor, n: int, c: int) -> Tensor:
     """A looked-up map ``[n', 1, c, H, W]`` (or ``[n', 1, c, 1, 1]``) as contiguous ``[n, c, P]``."""
@@ -171,11 +214,10 @@ class NativeShade(torch.autograd.Function):
     @staticmethod
     def forward(ctx, kd, r, ks, nl, nv, nh, vh, scale, ks_factor, taps=None):
         hw = nl.shape[-2:]
-        n, maps, geo = prepare(kd, r, ks, nl, nv, nh, vh, scale, hw, None if taps is None else taps[2])
-        tp = None if taps is None else taps[:2]
-        out, _, _ = _call(MODE_IMAGE_FWD, maps, geo, ks_factor, taps=tp)
+        n, maps, geo = prepare(kd, r, ks, nl, nv, nh, vh, scale, hw, None if taps is None else taps.grid)
+        out, _, _ = _call(MODE_IMAGE_FWD, maps, geo, ks_factor, taps=taps)
         ctx.save_for_backward(*maps, *geo)
-        ctx.meta = (ks_factor, tp, kd.shape, r.shape, ks.shape)
+        ctx.meta = (ks_factor, taps, kd.shape, r.shape, ks.shape)
         return out.reshape(n, geo[0].shape[0], 3, *hw)
 
     @staticmethod
@@ -195,13 +237,12 @@ class NativeLoss(torch.autograd.Function):
     @staticmethod
     def forward(ctx, kd, r, ks, nl, nv, nh, vh, scale, y, wgt, ks_factor, l1, taps=None):
         hw = nl.shape[-2:]
-        n, maps, geo = prepare(kd, r, ks, nl, nv, nh, vh, scale, hw, None if taps is None else taps[2])
+        n, maps, geo = prepare(kd, r, ks, nl, nv, nh, vh, scale, hw, None if taps is None else taps.grid)
         need = any(ctx.needs_input_grad[:3])
         yy = y.reshape(y.shape[0], 3, -1).contiguous()
         ww = wgt.expand(y.shape[0], 1, *hw).reshape(y.shape[0], -1).contiguous()
         _, epart, grads = _call(MODE_LOSS, maps, geo, ks_factor, y=yy, wgt=ww, l2=not l1, need_grad=need,
-                                taps=None if taps is None else taps[:2],
-                                no_grad=tuple(not f for f in ctx.needs_input_grad[:3]))
+                                taps=taps, no_grad=tuple(not f for f in ctx.needs_input_grad[:3]))
         if need:
             ctx.save_for_backward(*grads)
         ctx.shapes = (kd.shape, r.shape, ks.shape)

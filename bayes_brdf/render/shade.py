@@ -194,24 +194,27 @@ def _sparse_images(maps: SVBRDF, g: GBuffer, backend: str) -> bool:
 def _compact_chunks(maps: SVBRDF, g: GBuffer, ks_factor: bool, eps: float, chunk_views: int | None, backend: str):
     """:func:`shade_chunks` on the valid pixels of ``g`` (compacted), put back into images (0 off the surface)."""
     n = maps.num_particles or 1
-    c, sel = compacted(g)
+    c, index = compacted(g)
     V, (h, w) = g.num_views, g.resolution
-    counts = sel.reshape(V, -1).sum(1)
-    offsets = [0] + torch.cumsum(counts, 0).tolist()
     if chunk_views is None:
         chunk_views = max(1, CHUNK_ELEMENTS // max(1, n * h * w * 3 * g.light_dir.shape[1]))
-    memo = c.__dict__.setdefault("_slices", {})
+    memo = c.__dict__.setdefault("_views", {})
     for s in range(0, V, chunk_views):
         e = min(V, s + chunk_views)
-        a, b = offsets[s], offsets[e]
-        img = torch.zeros(n, e - s, h, w, 3, dtype=maps.albedo.dtype, device=maps.albedo.device)
-        if b > a:
-            cc = memo.get((a, b))
-            if cc is None:
-                cc = memo[(a, b)] = c.pixels_slice(a, b)
+        hit = memo.get((s, e))
+        if hit is None:                        # the chunk's pixels, in texture order, and where they go
+            if (s, e) == (0, V):
+                hit = (c, index)
+            else:
+                pick = ((index >= s * h * w) & (index < e * h * w)).nonzero()[:, 0]
+                hit = (c.pixels(pick), index[pick] - s * h * w)
+            memo[(s, e)] = hit
+        cc, where = hit
+        img = torch.zeros(n, (e - s) * h * w, 3, dtype=maps.albedo.dtype, device=maps.albedo.device)
+        if where.numel():
             (_, _, out), = shade_chunks(maps, cc, ks_factor=ks_factor, eps=eps, backend=backend)
-            img[:, sel[s:e]] = out[:, 0, :, 0, :].transpose(1, 2)
-        yield s, e, img.permute(0, 1, 4, 2, 3)
+            img[:, where] = out[:, 0, :, 0, :].transpose(1, 2)
+        yield s, e, img.reshape(n, e - s, h, w, 3).permute(0, 1, 4, 2, 3)
 
 
 class Renderer:
@@ -245,23 +248,29 @@ def render(maps: SVBRDF, views, surface: PlanarSample | None = None, **kw) -> Te
 
 
 def compacted(g: GBuffer) -> tuple[GBuffer, Tensor]:
-    """``(G-buffer of the valid pixels of g as one 1 x K view, the selection [V, H, W])``, kept on ``g``.
+    """``(G-buffer of the valid pixels of g as one 1 x K view, their flat indices into [V * H * W])``, kept on ``g``.
+
+    The pixels are in texture order (:func:`~bayes_brdf.render.texels.texture_order`): consecutive pixels read
+    nearby texels, which keeps the native texel kernel's reads and gradient rows in cache (on the bunny, 20
+    views of 128^2, its loss and gradient took 1.5-2x as long in raster order).
 
     Example:
         >>> from bayes_brdf.render import collocated_views
         >>> g = GBuffer.build(collocated_views(2, 3.0, resolution=8), PlanarSample(2.0))
-        >>> c, sel = compacted(g)
-        >>> c.resolution == (1, int(g.mask.sum()))
+        >>> c, index = compacted(g)
+        >>> c.resolution == (1, int(g.mask.sum())) and bool(g.mask.reshape(-1)[index].all())
         True
     """
     hit = g.__dict__.get("_compacted")
     if hit is None:
-        sel = g.mask
-        hit = g.__dict__["_compacted"] = (g.gather(sel), sel)
+        v, r, col = g.mask.nonzero(as_tuple=True)
+        order = texels.texture_order(g.uv[v, r, col])
+        h, w = g.resolution
+        hit = g.__dict__["_compacted"] = (g.gather(g.mask, order), ((v * h + r) * w + col)[order])
     return hit
 
 
-def _compact_data(g: GBuffer, sel: Tensor, target: Tensor, weight, kind: str):
+def _compact_data(g: GBuffer, index: Tensor, target: Tensor, weight, kind: str):
     """Target and weight at the compacted pixels ``[1, 1, K, ...]`` and the loss of the pixels off the surface
     (they render 0, so it does not depend on the maps); kept on ``g`` while the same tensors come again
     (a sampler's every step)."""
@@ -271,13 +280,13 @@ def _compact_data(g: GBuffer, sel: Tensor, target: Tensor, weight, kind: str):
     if hit is not None and hit[0] == key and hit[1][0] is target and hit[1][1] is wt:
         return hit[2]
     V, (h, w) = g.num_views, g.resolution
-    we = wt.expand(V, h, w) if wt.dim() < 3 else wt
-    off = ~sel
+    we = (wt.expand(V, h, w) if wt.dim() < 3 else wt).reshape(-1)
+    y = target.reshape(-1, 3)
+    off = ~g.mask.reshape(-1)
     const = None
     if bool(off.any()):
-        y = target[off]
-        const = (we[off][:, None] * (y.abs() if kind == "l1" else y * y)).sum()
-    out = (target[sel][None, None].contiguous(), we[sel][None, None].contiguous(), const)
+        const = (we[off][:, None] * (y[off].abs() if kind == "l1" else y[off] * y[off])).sum()
+    out = (y[index][None, None].contiguous(), we[index][None, None].contiguous(), const)
     g.__dict__["_compact_data"] = (key, (target, wt), out)
     return out
 
@@ -313,8 +322,8 @@ def shade_loss(maps: SVBRDF, g: GBuffer, target: Tensor, weight: Tensor | float 
     if not (g.aligned or g.gathered) and chunk_views is None:
         # views whose pixels are not the texels (a mesh, perspective views of the plane): only the pixels that
         # see the surface, as one 1 x K view, so masked pixels cost nothing and the fused kernel applies
-        c, sel = compacted(g)
-        yc, wc, const = _compact_data(g, sel, target, weight, kind)
+        c, index = compacted(g)
+        yc, wc, const = _compact_data(g, index, target, weight, kind)
         loss = shade_loss(maps, c, yc, wc, kind=kind, ks_factor=ks_factor, eps=eps, backend=backend)
         return loss + const if const is not None else loss
     n, g, chunks = _chunks(maps, g, eps, chunk_views, texel_space=backend != "eager")
