@@ -81,7 +81,8 @@ def main(argv=None):
     pviews = collocated_views(nplane, 15.0, camera="rectified", resolution=a.tex, power=1500.0, method="sobol")
     pd, ppot, psmp, pstate = setup(PlanarSample(10.0), pviews, a.tex, a.particles)
     rng = torch.Generator().manual_seed(0)
-    vg, vg_ratio = interleaved([lambda: mpot.value_and_grad(mstate.z), lambda: ppot.value_and_grad(pstate.z)], a.repeats)
+    vg, vg_ratio = interleaved([lambda: mpot.value_and_grad(mstate.z), lambda: ppot.value_and_grad(pstate.z)],
+                               a.repeats)
     st, st_ratio = interleaved([lambda: msmp.step(mstate, 0, mpot, rng), lambda: psmp.step(pstate, 0, ppot, rng)],
                                a.repeats)
     print(f"{a.mesh}: {mesh.num_faces} faces, texture {a.tex}^2, {a.views} views of {a.res}^2 -> {pixels} valid pixels; "

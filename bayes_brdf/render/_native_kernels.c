@@ -18,10 +18,8 @@
  * the thread schedule. Views and lights are the inner loops, so the maps are read
  * once and the gradients stay in registers/L1.
  */
-#include <math.h>
 #include <omp.h>
 #include <stdint.h>
-#include <string.h>
 
 #include "_native_brdf.h"
 

@@ -138,7 +138,7 @@ def _texel_route(kd, r, ks, nl, nv, nh, vh, scale, taps):
     """With ``taps`` (texel maps read bilinearly at each pixel): ``"native"`` when the C kernel can gather itself,
     else the maps looked up here (``"lookup"``) for the other implementations."""
     ok = not any(t.requires_grad for t in (nl, nv, nh, vh, scale)) and nl.shape[0] == 1 and \
-        nl.shape[2] <= native.MAX_LIGHTS and native.available(kd)
+        nl.shape[2] <= native.MAX_LIGHTS and native.available(kd, texels=True)
     return "native" if ok else "lookup"
 
 

@@ -120,9 +120,10 @@ def _texel_lib(dtype: torch.dtype):
                            fallback="sparse torch lookups")
 
 
-def available(t: Tensor) -> bool:
-    """Whether the native kernels can run on tensors like ``t`` (CPU, float32/float64, built OK)."""
-    return t.device.type == "cpu" and _lib(t.dtype) is not None and _texel_lib(t.dtype) is not None
+def available(t: Tensor, texels: bool = False) -> bool:
+    """Whether the native pixel kernel (``texels``: the texel kernel) can run on tensors like ``t`` (CPU,
+    float32/float64, built OK)."""
+    return t.device.type == "cpu" and (_texel_lib if texels else _lib)(t.dtype) is not None
 
 
 def _ptr(t: Tensor | None):
@@ -166,6 +167,7 @@ def _call(mode, maps, geo, ks_factor, *, y=None, wgt=None, gout=None, l2=False, 
         raise MemoryError(f"the native texel kernel could not allocate its scratch memory ({n} particles, "
                           f"{T} texels, {P} pixels)")
     return out, epart, grads
+
 
 def _flat(t: Tensor, n: int, c: int) -> Tensor:
     """A looked-up map ``[n', 1, c, H, W]`` (or ``[n', 1, c, 1, 1]``) as contiguous ``[n, c, P]``."""

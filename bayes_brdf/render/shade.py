@@ -187,7 +187,7 @@ def _sparse_images(maps: SVBRDF, g: GBuffer, backend: str) -> bool:
     if backend == "eager" or g.aligned or g.gathered or g.light_dir.shape[1] > native.MAX_LIGHTS:
         return False
     nrm = maps.normal
-    return nrm.dim() == 3 and not nrm.requires_grad and native.available(maps.albedo) and \
+    return nrm.dim() == 3 and not nrm.requires_grad and native.available(maps.albedo, texels=True) and \
         _texel_grid(maps, compacted(g)[0]) is not None
 
 

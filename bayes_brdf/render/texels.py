@@ -4,8 +4,9 @@ A pixel at ``grid_sample`` coordinate ``uv`` reads its map bilinearly from four 
 that is a ``K x T`` matrix ``S`` with four entries per row (``T`` texels), built once per G-buffer and map
 size (:func:`tap_matrix`). The lookup of maps ``[n, C, T]`` is ``S`` applied to every channel, and its
 gradient is ``S^T`` applied to the pixels' gradients: one sparse product each way, parallel, with no
-atomics. The native kernel reads the same taps itself, through a :class:`ChunkPlan` (fixed chunks of pixels,
-each with gradient rows of its own, so its sums do not depend on the thread count). Padding is ``"border"`` (coordinates clamped to the outermost texel centres), exactly as
+atomics. The native kernel reads the same taps itself, through a :class:`ChunkPlan` (fixed chunks of
+pixels, each with gradient rows of its own, so its sums do not depend on the thread count). Padding is
+``"border"`` (coordinates clamped to the outermost texel centres), exactly as
 ``F.grid_sample(..., mode="bilinear", padding_mode="border")`` (tests check it): atlas texels no pixel
 reads get no gradient and keep their prior.
 """

@@ -95,7 +95,7 @@ def test_texel_kernel_matches_eager_with_constant_and_shared_maps(kind, lights, 
     per-view path (grid_sample, autograd)."""
     from bayes_brdf.render import PointLight, View, native
     from bayes_brdf.render.shade import shade
-    if not native.available(torch.ones(1)):
+    if not native.available(torch.ones(1), texels=True):
         pytest.skip("native kernels unavailable (no C compiler)")
     extra = [PointLight((1.0, -2.0, 4.0), (20.0, 10.0, 5.0)), PointLight((-3.0, 1.0, 6.0), 30.0)]
     views = [View(v.camera, v.lights + tuple(extra[:lights - 1]))
