@@ -43,7 +43,7 @@ def setup(surface, views, tex, particles):
     data = ModelData.from_observations(Observations(views, img, surface))
     pot = Potential(per_texel(tex, albedo="rgb"), (data,))
     smp, cfg = make_sampler("spos", run={"particles": particles})
-    state = smp.init(pot.init(particles, seed=0), pot, torch.Generator().manual_seed(0))
+    state = smp.init(pot.init(particles, seed=0), pot, torch.Generator().manual_seed(0), steps=cfg.steps)
     return data, pot, smp, state
 
 

@@ -137,17 +137,11 @@ def sampler_row(name: str, model, data: ModelData, particles: int, timer: Timer,
         return {"wall": wall, "cpu": cpu, "steps": k, "evals": (pot.evaluations - e0) / timer.calls,
                 "saturated": _saturated(z0)}
     sampler, _ = make_sampler(name)
-    sampler.num_steps = 10**6          # the horizon the driver would set (annealing, NUTS' warm-up check)
     rng = torch.Generator().manual_seed(seed)
     torch.manual_seed(seed)
     with warnings.catch_warnings():
-        warnings.simplefilter("ignore")   # emcee: fewer walkers than 2 D
-        state0 = sampler.init(z0, pot, rng)
-    if name == "emcee" and particles < 2 * pot.dim:
-        # emcee's stretch move refuses fewer walkers than 2 D (our Emcee only warns, then emcee raises):
-        # allow it here, the step's cost does not depend on it
-        for move in sampler._sampler(pot, particles, pot.dim)._moves:
-            move.live_dangerously = True
+        warnings.simplefilter("ignore")   # emcee: fewer walkers than 2 D (it then steps anyway)
+        state0 = sampler.init(z0, pot, rng, steps=10**6)   # a long horizon (annealing, NUTS' warm-up check)
     box = {"state": state0, "t": 0}
 
     def step():

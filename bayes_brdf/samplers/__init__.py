@@ -19,7 +19,7 @@ from dataclasses import dataclass, fields
 
 from ..errors import InputError
 from ..presets import load_preset
-from .base import Sampler
+from .base import Info, Sampler
 from .driver import Interrupted, RunResult, SamplerDiverged, run
 from .ensemble import Emcee
 from .multistart import MultistartSGD
@@ -114,5 +114,5 @@ def _run_config(r: dict) -> RunConfig:
     return RunConfig(**r)
 
 
-__all__ = ["Sampler", "SPOS", "SVGD", "SGLD", "Emcee", "MultistartSGD", "NUTS", "SAMPLERS", "make_sampler",
+__all__ = ["Sampler", "Info", "SPOS", "SVGD", "SGLD", "Emcee", "MultistartSGD", "NUTS", "SAMPLERS", "make_sampler",
            "RunConfig", "run", "RunResult", "SamplerDiverged", "Interrupted"]

@@ -58,16 +58,21 @@ class RunResult:
 
 
 def _plain(x):
+    """A state as nested dicts of tensors and numbers, for ``torch.save``; its ``transient`` fields left out."""
     if isinstance(x, tuple) and hasattr(x, "_fields"):
-        return {k: _plain(v) for k, v in x._asdict().items()}
+        skip = getattr(type(x), "transient", ())
+        return {k: _plain(v) for k, v in x._asdict().items() if k not in skip}
     if isinstance(x, Tensor):
         return x.detach().cpu()
     return x
 
 
 def _fill(template, plain, device):
+    """The state ``template`` (from ``init``) with the values of ``plain``; a field ``plain`` lacks (a transient one)
+    keeps the template's."""
     if isinstance(template, tuple) and hasattr(template, "_fields"):
-        return type(template)(**{k: _fill(getattr(template, k), plain[k], device) for k in template._fields})
+        return type(template)(**{k: _fill(v, plain[k], device) if k in plain else v
+                                 for k, v in template._asdict().items()})
     if isinstance(template, Tensor):
         return plain.to(device=template.device, dtype=template.dtype)
     return plain
@@ -168,7 +173,6 @@ def _run(sampler, potential, *, particles: int = 20, steps: int = 1000, seed: in
     use_mb = any(v is not None for v in mb.values())
     if use_mb and not hasattr(potential, "minibatch"):
         raise InputError("minibatches need a model potential (its data must support minibatch)")
-    sampler.num_steps, sampler.groups = steps, groups
     signature = _signature(sampler, particles, steps, seed, mb, groups, init_margin, cap, identity)
     total = particles * groups
     ck_path = Path(checkpoint) if checkpoint is not None else None
@@ -179,7 +183,7 @@ def _run(sampler, potential, *, particles: int = 20, steps: int = 1000, seed: in
         z0 = potential.init(total, seed=seed, margin=init_margin) if init_margin else potential.init(total, seed=seed)
     elif tuple(z0.shape) != (total, potential.dim):
         raise InputError(f"initial particles have shape {tuple(z0.shape)}, expected {(total, potential.dim)}")
-    state = sampler.init(z0, potential, rng)
+    state = sampler.init(z0, potential, rng, steps=steps, groups=groups)   # the horizon stays steps under max_steps
     trace = torch.full((cap,), float("nan"), dtype=torch.float64)
     rec = _Recorder(cap, total, z0.shape[1])
     start, seconds0, evals0, horizon = 0, 0.0, 0, steps

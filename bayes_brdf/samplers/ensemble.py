@@ -4,8 +4,11 @@ Gradient-free. One driver step is one ensemble step of ``emcee.EnsembleSampler``
 with ``vectorize=True``: emcee updates the walkers in two halves, so the
 potential is called with ``n / 2`` particles at a time (still one batched
 model run per call). emcee's random state travels in our state, so a resumed
-run continues exactly. With fewer than ``2 D`` walkers the stretch move
-cannot explore the space (the ensemble spans a subspace): a clear warning says so.
+run continues exactly. The ``EnsembleSampler`` itself is built once per run by
+``init`` (building one costs about as much as a step) and rides in the state
+as a transient field: it holds nothing of the chain, so checkpoints leave it
+out. With fewer than ``2 D`` walkers the stretch move cannot explore the space
+(the ensemble spans a subspace): a clear warning says so.
 """
 from __future__ import annotations
 
@@ -19,7 +22,8 @@ import torch
 from torch import Tensor
 
 from ..errors import InputError
-from .base import Sampler
+from .base import Info, Sampler
+from .config import Configurable
 
 
 class EnsembleState(NamedTuple):
@@ -28,10 +32,13 @@ class EnsembleState(NamedTuple):
     rng_keys: Tensor       # numpy MT19937 state, as tensors (checkpointable without pickle)
     rng_pos: int
     acceptance: Tensor     # running acceptance count per walker
+    ensemble: "_EmceeRun"  # this run's emcee.EnsembleSampler (transient: not data, left out of checkpoints)
+
+    transient = ("ensemble",)
 
 
 @dataclass
-class Emcee(Sampler):
+class Emcee(Configurable, Sampler):
     stretch_a: float = 2.0          # the stretch move's scale parameter a
 
     name = "emcee"
@@ -43,24 +50,7 @@ class Emcee(Sampler):
         if not self.stretch_a > 1:
             raise InputError(f"emcee parameter stretch_a must be > 1, got {self.stretch_a!r}")
 
-    def _sampler(self, potential, n, D):
-        key = (id(potential), n, D)
-        if getattr(self, "_key", None) != key:
-            dt = potential.dtype
-
-            def log_prob(x):
-                zz = torch.as_tensor(np.ascontiguousarray(x), dtype=dt, device=potential.device)
-                with torch.no_grad():
-                    lp = -potential.energy(zz)
-                return np.nan_to_num(lp.double().cpu().numpy(), nan=-np.inf)
-
-            # we warn ourselves when n < 2 D (in init); emcee would raise instead
-            move = emcee.moves.StretchMove(a=self.stretch_a, live_dangerously=n < 2 * D)
-            self._emcee = emcee.EnsembleSampler(n, D, log_prob, moves=move, vectorize=True)
-            self._key = key
-        return self._emcee
-
-    def init(self, z0, potential, rng):
+    def init(self, z0, potential, rng, *, steps, groups=1):
         n, D = z0.shape
         if n < 2 or n % 2:
             raise InputError(f"emcee needs an even number of walkers >= 2, got {n}", fix="set particles to an even number")
@@ -73,21 +63,47 @@ class Emcee(Sampler):
             lp = -potential.energy(z0)
         _check_start(lp, self.name)
         return EnsembleState(z0.clone(), lp.double(), torch.from_numpy(st[1].astype(np.int64)), int(st[2]),
-                             torch.zeros(n, dtype=torch.float64))
+                             torch.zeros(n, dtype=torch.float64), _EmceeRun(n, D, self.stretch_a))
 
     def step(self, state, t, potential, rng):
-        n, D = state.z.shape
-        s = self._sampler(potential, n, D)
         rs = ("MT19937", state.rng_keys.numpy().astype(np.uint32), state.rng_pos, 0, 0.0)
         cur = emcee.State(state.z.detach().cpu().double().numpy(), log_prob=state.log_prob.numpy(), random_state=rs)
         before = cur.coords.copy()
-        new = s.sample(cur, iterations=1, store=False, skip_initial_state_check=True).__next__()
+        new = state.ensemble.step(cur, potential)
         rs = new.random_state
         z = torch.as_tensor(new.coords, dtype=state.z.dtype, device=state.z.device)
         moved = torch.from_numpy((new.coords != before).any(1).astype(np.float64))
         lp = torch.from_numpy(np.asarray(new.log_prob, dtype=np.float64))
-        return (EnsembleState(z, lp, torch.from_numpy(rs[1].astype(np.int64)), int(rs[2]), state.acceptance + moved),
-                {"energy": -lp, "accepted": float(moved.mean())})
+        return (state._replace(z=z, log_prob=lp, rng_keys=torch.from_numpy(rs[1].astype(np.int64)), rng_pos=int(rs[2]),
+                               acceptance=state.acceptance + moved),
+                Info(-lp, {"accepted": float(moved.mean())}))
+
+
+class _EmceeRun:
+    """One run's ``emcee.EnsembleSampler`` (``n`` walkers in ``D`` dimensions, the stretch move): it keeps
+    nothing of the chain (positions, log-probabilities and the random state travel in the state), and
+    each :meth:`step` evaluates the potential it is given (the run's, or a minibatch of it)."""
+
+    def __init__(self, n: int, D: int, stretch_a: float):
+        self.potential = None
+        # we warn ourselves when n < 2 D (in init); emcee would raise instead
+        move = emcee.moves.StretchMove(a=stretch_a, live_dangerously=n < 2 * D)
+        self.sampler = emcee.EnsembleSampler(n, D, self._log_prob, moves=move, vectorize=True)
+
+    def _log_prob(self, x):
+        pot = self.potential
+        zz = torch.as_tensor(np.ascontiguousarray(x), dtype=pot.dtype, device=pot.device)
+        with torch.no_grad():
+            lp = -pot.energy(zz)
+        return np.nan_to_num(lp.double().cpu().numpy(), nan=-np.inf)
+
+    def step(self, cur: "emcee.State", potential) -> "emcee.State":
+        """One ensemble step from ``cur`` (its random state included) on ``potential``."""
+        self.potential = potential
+        try:
+            return next(self.sampler.sample(cur, iterations=1, store=False, skip_initial_state_check=True))
+        finally:
+            self.potential = None
 
 
 def _check_start(neg_energy: Tensor, name: str):

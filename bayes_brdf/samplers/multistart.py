@@ -13,7 +13,9 @@ from typing import NamedTuple
 import torch
 from torch import Tensor
 
-from .base import Sampler, adam_direction
+from .base import Info, Sampler
+from .config import Configurable
+from .numerics import adam_direction
 
 
 class MultistartState(NamedTuple):
@@ -24,7 +26,7 @@ class MultistartState(NamedTuple):
 
 
 @dataclass
-class MultistartSGD(Sampler):
+class MultistartSGD(Configurable, Sampler):
     optimizer: str = "adam"          # "adam" or "sgd"
     step_size: float = 0.05
     adam_beta1: float = 0.9
@@ -32,7 +34,6 @@ class MultistartSGD(Sampler):
     adam_eps: float = 1e-8
     jacobian: bool = False           # include the log-Jacobian (optimise in unconstrained density)
 
-    chains = False
     name = "multistart_sgd"
     State = MultistartState
 
@@ -41,7 +42,10 @@ class MultistartSGD(Sampler):
         self._unit("adam_beta1", "adam_beta2")
         self._choice("optimizer", ("adam", "sgd"))
 
-    def init(self, z0, potential, rng):
+    def particles_are_chains(self, dim: int) -> bool:
+        return False     # point estimates, not chains
+
+    def init(self, z0, potential, rng, *, steps, groups=1):
         return MultistartState(z0.clone(), torch.zeros_like(z0), torch.zeros_like(z0), 0)
 
     def step(self, state, t, potential, rng):
@@ -52,4 +56,4 @@ class MultistartSGD(Sampler):
             z = state.z - self.step_size * d
         else:
             z = state.z - self.step_size * grad
-        return MultistartState(z, m, v, c), {"energy": u}
+        return MultistartState(z, m, v, c), Info(u)

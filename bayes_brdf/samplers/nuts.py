@@ -6,8 +6,10 @@ One chain, stepped one transition per driver step with Pyro's own kernel
 transitions after warm-up (a ring buffer), so a run needs at least
 ``warmup_steps + n * thin`` steps. NUTS is inherently sequential; it is here as
 a trusted reference, not for per-texel problems. Its adaptation state lives in
-Pyro's kernel, so a resumed run replays the chain from the start (same seed,
-same result) rather than continuing from the checkpoint.
+Pyro's kernel, which ``init`` builds for the run and the state carries as a
+transient field (not data: checkpoints leave it out), so a resumed run replays
+the chain from the start (same seed, same result) rather than continuing from
+the checkpoint.
 """
 from __future__ import annotations
 
@@ -19,7 +21,8 @@ from pyro.infer.mcmc import NUTS as PyroNUTS
 from torch import Tensor
 
 from ..errors import InputError
-from .base import Sampler
+from .base import Info, Sampler
+from .config import Configurable
 from .ensemble import _check_start
 
 
@@ -27,10 +30,13 @@ class NUTSState(NamedTuple):
     z: Tensor          # [n, D] the retained draws
     position: Tensor   # [D] the chain's current state
     kept: int
+    kernel: PyroNUTS   # this run's Pyro kernel, with its adaptation (transient: left out of checkpoints)
+
+    transient = ("kernel",)
 
 
 @dataclass
-class NUTS(Sampler):
+class NUTS(Configurable, Sampler):
     warmup_steps: int = 200
     thin: int = 10
     step_size: float = 0.1           # initial step size (adapted during warm-up)
@@ -38,7 +44,6 @@ class NUTS(Sampler):
     max_tree_depth: int = 8
     adapt_mass_matrix: bool = True
 
-    chains = False
     name = "nuts"
     supports_groups = False
     State = NUTSState
@@ -51,12 +56,15 @@ class NUTS(Sampler):
         if self.warmup_steps < 0:
             raise InputError(f"nuts parameter warmup_steps must be >= 0, got {self.warmup_steps!r}")
 
-    def init(self, z0, potential, rng):
+    def particles_are_chains(self, dim: int) -> bool:
+        return False     # the particles are one chain's last draws
+
+    def init(self, z0, potential, rng, *, steps, groups=1):
         n = z0.shape[0]
         need = self.warmup_steps + n * self.thin
-        if self.num_steps < need:
+        if steps < need:
             raise InputError(f"nuts with {n} particles needs at least warmup_steps + n * thin = {need} steps, "
-                             f"got {self.num_steps}", fix="raise steps or lower warmup_steps/thin")
+                             f"got {steps}", fix="raise steps or lower warmup_steps/thin")
 
         with torch.no_grad():
             _check_start(-potential.energy(z0[:1]), self.name)
@@ -69,17 +77,17 @@ class NUTS(Sampler):
                      max_tree_depth=self.max_tree_depth, full_mass=False)
         k.initial_params = {"z": z0[0].clone()}
         k.setup(self.warmup_steps)
-        self._kernel = k
-        return NUTSState(z0.clone(), z0[0].clone(), 0)
+        return NUTSState(z0.clone(), z0[0].clone(), 0, k)
 
     def step(self, state, t, potential, rng):
-        params = self._kernel.sample({"z": state.position})
+        kernel = state.kernel
+        params = kernel.sample({"z": state.position})
         pos = params["z"].detach()
         z, kept = state.z, state.kept
         if t >= self.warmup_steps and (t - self.warmup_steps) % self.thin == 0:
             z = z.clone()
             z[kept % z.shape[0]] = pos
             kept += 1
-        diag = self._kernel.logging()
-        u = torch.as_tensor(float(self._kernel._potential_energy_last), dtype=pos.dtype).reshape(1)
-        return NUTSState(z, pos, kept), {"energy": u, "step_size": float(diag.get("step size", float("nan")))}
+        diag = kernel.logging()
+        u = torch.as_tensor(float(kernel._potential_energy_last), dtype=pos.dtype).reshape(1)
+        return NUTSState(z, pos, kept, kernel), Info(u, {"step_size": float(diag.get("step size", float("nan")))})

@@ -13,16 +13,19 @@ import torch
 from torch import Tensor
 
 from ..errors import InputError
-from .base import Preconditioner, Sampler, precond_init, precond_update
+from .base import Info, Sampler
+from .config import Configurable
+from .numerics import Preconditioner, precond_init, precond_update
 
 
 class SGLDState(NamedTuple):
     z: Tensor
     precond: Preconditioner
+    groups: int         # independent ensembles (each shares one preconditioner)
 
 
 @dataclass
-class SGLD(Sampler):
+class SGLD(Configurable, Sampler):
     step_size: float = 0.01          # a
     schedule_b: float = 1.0          # b
     schedule_gamma: float = 0.0      # gamma (0: constant step size)
@@ -43,8 +46,8 @@ class SGLD(Sampler):
     def epsilon(self, t: int) -> float:
         return self.step_size * (self.schedule_b + t) ** (-self.schedule_gamma)
 
-    def init(self, z0, potential, rng):
-        return SGLDState(z0.clone(), precond_init(self.groups, z0.shape[1], z0))
+    def init(self, z0, potential, rng, *, steps, groups=1):
+        return SGLDState(z0.clone(), precond_init(groups, z0.shape[1], z0), groups)
 
     def step(self, state, t, potential, rng):
         z = state.z
@@ -55,8 +58,8 @@ class SGLD(Sampler):
             pc, G = precond_update(pc, grad, self.rms_beta2, self.rms_eps)
         else:
             G = torch.ones((), dtype=z.dtype, device=z.device)
-        shape = (self.groups, z.shape[0] // self.groups, z.shape[1])
+        shape = (state.groups, z.shape[0] // state.groups, z.shape[1])
         noise = torch.randn(z.shape, generator=rng, dtype=z.dtype, device=rng.device).to(z.device).view(shape)
         z = noise.mul_(G.mul(2 * eps).sqrt_()).addcmul_(G, grad.view(shape), value=-eps).add_(z.view(shape))
         z = z.view(state.z.shape)
-        return SGLDState(z, pc), {"energy": u, "step_size": eps}
+        return state._replace(z=z, precond=pc), Info(u, {"step_size": eps})

@@ -50,7 +50,9 @@ import torch
 from torch import Tensor
 
 from ..errors import InputError
-from .base import Preconditioner, Sampler, anneal, precond_init, precond_update
+from .base import Info, Sampler
+from .config import Configurable
+from .numerics import Preconditioner, anneal, precond_init, precond_update
 from .kernels import kernel_apply, rbf_median
 
 
@@ -58,10 +60,12 @@ class SPOSState(NamedTuple):
     z: Tensor
     precond: Preconditioner
     precond_noise: Preconditioner
+    num_steps: int      # the run's horizon (annealing: T = anneal_fraction * num_steps)
+    groups: int         # independent ensembles, n particles each
 
 
 @dataclass
-class SPOS(Sampler):
+class SPOS(Configurable, Sampler):
     step_size: float = 0.05          # lambda (parameter units with the Adam preconditioner)
     beta: "float | str" = "auto"     # Langevin inverse temperature of Eq. (4), or "auto"
     beta_low_dim: float = 200.0      # "auto": beta in 2-D, decreasing as 2/D to 1
@@ -103,19 +107,19 @@ class SPOS(Sampler):
         # with a large beta (low dimension) the Stein part dominates: particles settle like SVGD's
         return self.beta_for(dim) <= 5
 
-    def init(self, z0, potential, rng):
-        p0 = precond_init(self.groups, z0.shape[1], z0)
-        return SPOSState(z0.clone(), p0, p0)
+    def init(self, z0, potential, rng, *, steps, groups=1):
+        p0 = precond_init(groups, z0.shape[1], z0)
+        return SPOSState(z0.clone(), p0, p0, steps, groups)
 
     def step(self, state, t, potential, rng):
-        z = state.z
-        n, D = z.shape[0] // self.groups, z.shape[1]
+        z, groups = state.z, state.groups
+        n, D = z.shape[0] // groups, z.shape[1]
         u, grad = potential.value_and_grad(z)
-        gam = anneal(t, round(self.anneal_fraction * self.num_steps), self.anneal_delta) if self.anneal else 1.0
+        gam = anneal(t, round(self.anneal_fraction * state.num_steps), self.anneal_delta) if self.anneal else 1.0
         beta, eps = self.beta_for(D), self.eps_for(D)
-        K, rep = rbf_median(z, self.groups)
+        K, rep = rbf_median(z, groups)
         kg = kernel_apply(K, grad)
-        shape = (self.groups, n, D)
+        shape = (groups, n, D)
         pc, pn = state.precond, state.precond_noise
         if self.preconditioner == "adam" and gam < 0.99:
             # un-annealed update, for the noise's scale (see the module docstring)
@@ -137,7 +141,7 @@ class SPOS(Sampler):
         if corr is not None:                             # d M / d z: keeps the ensemble-scaled step exact
             noise.addcmul_(M, corr)
         z = noise.addcmul_(G * lam, drift.view(shape)).add_(zg).view(z.shape)
-        return SPOSState(z, pc, pn), {"energy": u, "gamma": gam}
+        return state._replace(z=z, precond=pc, precond_noise=pn), Info(u, {"gamma": gam})
 
 
 def _spread_step(zg: Tensor, step: float, floor: float) -> tuple[Tensor, Tensor | None]:

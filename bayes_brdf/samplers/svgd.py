@@ -16,7 +16,9 @@ import torch
 from torch import Tensor
 
 from ..errors import InputError
-from .base import Sampler, adam_direction, anneal
+from .base import Info, Sampler
+from .config import Configurable
+from .numerics import adam_direction, anneal
 from .kernels import kernel_apply, rbf_median
 
 
@@ -25,10 +27,12 @@ class SVGDState(NamedTuple):
     m: Tensor
     v: Tensor
     count: int
+    num_steps: int      # the run's horizon (annealing)
+    groups: int         # independent ensembles, n particles each
 
 
 @dataclass
-class SVGD(Sampler):
+class SVGD(Configurable, Sampler):
     step_size: float = 0.05
     optimizer: str = "adam"          # "adam" or "sgd"
     adam_beta1: float = 0.9
@@ -38,7 +42,6 @@ class SVGD(Sampler):
     anneal_delta: float = 1.0
     anneal_fraction: float = 0.5
 
-    chains = False
     name = "svgd"
     State = SVGDState
 
@@ -49,15 +52,18 @@ class SVGD(Sampler):
         if not 0 < self.anneal_fraction <= 1:
             raise InputError(f"svgd parameter anneal_fraction must be in (0, 1], got {self.anneal_fraction!r}")
 
-    def init(self, z0, potential, rng):
-        return SVGDState(z0.clone(), torch.zeros_like(z0), torch.zeros_like(z0), 0)
+    def particles_are_chains(self, dim: int) -> bool:
+        return False     # deterministic: the particles settle on a fixed set
+
+    def init(self, z0, potential, rng, *, steps, groups=1):
+        return SVGDState(z0.clone(), torch.zeros_like(z0), torch.zeros_like(z0), 0, steps, groups)
 
     def step(self, state, t, potential, rng):
         z = state.z
-        n = z.shape[0] // self.groups
+        n = z.shape[0] // state.groups
         u, grad = potential.value_and_grad(z)
-        gam = anneal(t, round(self.anneal_fraction * self.num_steps), self.anneal_delta) if self.anneal else 1.0
-        K, rep = rbf_median(z, self.groups)
+        gam = anneal(t, round(self.anneal_fraction * state.num_steps), self.anneal_delta) if self.anneal else 1.0
+        K, rep = rbf_median(z, state.groups)
         phi = (rep - kernel_apply(K, gam * grad)) / n
         m, v, c = state.m, state.v, state.count + 1
         if self.optimizer == "adam":
@@ -65,4 +71,4 @@ class SVGD(Sampler):
             z = z + self.step_size * d
         else:
             z = z + self.step_size * phi
-        return SVGDState(z, m, v, c), {"energy": u, "gamma": gam}
+        return state._replace(z=z, m=m, v=v, count=c), Info(u, {"gamma": gam})
