@@ -9,10 +9,11 @@ import torch
 
 from bayes_brdf.errors import InputError
 from bayes_brdf.potential import FunctionPotential
-from bayes_brdf.samplers import SAMPLERS, SamplerDiverged, make_sampler, run
+from bayes_brdf.samplers import SAMPLERS, Info, Sampler, SamplerDiverged, make_sampler, run
 from bayes_brdf.samplers.targets import Banana
 
-# Small explicit settings: every sampler takes a few real steps on the banana in well under a second.
+# Small explicit settings: every sampler takes a few real steps on the banana in well under a second. One row per
+# sampler of the registry (test_every_registered_sampler_has_settings): the tests below run over SAMPLERS.
 PARAMS = {
     "spos": {"step_size": 0.05, "beta": 1.0, "anneal": True, "anneal_fraction": 0.5, "preconditioner": "adam"},
     "svgd": {"step_size": 0.05, "optimizer": "adam"},
@@ -21,7 +22,8 @@ PARAMS = {
     "multistart_sgd": {"step_size": 0.05, "optimizer": "adam"},
     "nuts": {"warmup_steps": 10, "thin": 1, "step_size": 0.1, "max_tree_depth": 4},
 }
-RESUMABLE = [k for k in PARAMS if SAMPLERS[k].exact_resume]
+NAMES = list(SAMPLERS)
+RESUMABLE = [k for k in NAMES if SAMPLERS[k].exact_resume]
 N, STEPS = 8, 40
 
 
@@ -52,6 +54,10 @@ def _interrupt_at(step):
 
 def test_resumable_list():
     assert RESUMABLE == ["spos", "svgd", "sgld", "emcee", "multistart_sgd"]
+
+
+def test_every_registered_sampler_has_settings():
+    assert list(PARAMS) == NAMES      # a sampler added to SAMPLERS needs a row here (and cases in test_known_answers)
 
 
 # ----------------------------------------------------------------------------- checkpoint + resume
@@ -134,7 +140,7 @@ def test_nuts_replays_instead_of_resuming(tmp_path):
 
 
 # ----------------------------------------------------------------------------- seeds
-@pytest.mark.parametrize("name", list(PARAMS))
+@pytest.mark.parametrize("name", NAMES)
 def test_same_seed_same_result(name):
     a, b, c = _run(name, seed=7), _run(name, seed=7), _run(name, seed=8)
     assert torch.equal(a.z, b.z)
@@ -151,7 +157,7 @@ def _nan_outside(z):
     return torch.where(z.abs().amax(1) > 3.0, torch.full_like(z[:, 0], float("nan")), 0.5 * (z * z).sum(1))
 
 
-@pytest.mark.parametrize("name", list(PARAMS))
+@pytest.mark.parametrize("name", NAMES)
 def test_nan_potential_raises_sampler_diverged(name):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")

@@ -19,7 +19,9 @@ with the exact stationary covariance of unadjusted Langevin
 (``CorrelatedGaussian.langevin_cov``); SVGD (no noise) is asserted to
 *under*-estimate the 10-D variances; multi-start SGD is asserted to find the
 modes, not to sample. ``test_bounds_reject_*`` show the same bounds fail on
-wrong answers.
+wrong answers. Every sampler of the registry (``SAMPLERS``) has cases on every
+target and meets one shared check on the Gaussian (mean right, no variance
+widened), so a new sampler cannot go untested.
 
 Every case runs once per session (cached) with a fixed seed, one torch thread.
 """
@@ -104,12 +106,12 @@ def samples(sampler: str, target: str) -> torch.Tensor:
     return run_case(sampler, target)
 
 
-def check_moments(z, target: Target, *, ess=1.0, var_ref=None, k: float = K) -> list[str]:
+def check_moments(z, target: Target, *, ess=1.0, var_ref=None, k: float = K, narrower_ok: bool = False) -> list[str]:
     """What is wrong with samples ``z`` (empty when nothing): means, variances and, for the mixture, mode weights.
 
     Each quantity may be off by ``k`` standard errors of ``n * ess`` independent exact draws. ``ess`` is a
     number or, for a chain, :func:`chain_ess`'s per-statistic fractions; ``var_ref`` replaces the exact
-    variances (a sampler's known stationary variances).
+    variances (a sampler's known stationary variances); ``narrower_ok`` lets variances fall short of them.
     """
     e = moment_errors(z, target)
     n, D = z.shape
@@ -120,7 +122,8 @@ def check_moments(z, target: Target, *, ess=1.0, var_ref=None, k: float = K) -> 
     if float(mean_z.max()) > k:
         fails.append(f"mean off by {float(mean_z.max()):.2f} effective standard errors (> {k})")
     ratio = e.var_ratio if var_ref is None else z.var(0) / var_ref
-    var_z = (ratio - 1).abs() / ((target.kurtosis - 1) / n).sqrt() * ess["var"].sqrt()
+    var_z = ((ratio - 1).clamp_min(0) if narrower_ok else (ratio - 1).abs()) / ((target.kurtosis - 1) / n).sqrt() \
+        * ess["var"].sqrt()
     if float(var_z.max()) > k:
         fails.append(f"variance ratios {[round(v, 3) for v in ratio.tolist()]} off by {float(var_z.max()):.2f} "
                      f"effective standard errors (> {k})")
@@ -256,6 +259,28 @@ def test_multistart_finds_both_mixture_modes():
     assert set(d.argmin(1).tolist()) == {0, 1}                  # and both modes are found
 
 
+# ----------------------------------------------------------------------------- every sampler of the registry
+# emcee style: one shared check over SAMPLERS, on the cases above (cached: no extra runs). A sampler added to the
+# registry needs cases on every target and then meets this check or fails: none goes untested. Whatever its known
+# biases, every sampler must put the 10-D Gaussian's mean within K effective standard errors and widen no variance
+# beyond K of them (the exact ones sample it; SGLD's step-size bias is +4.3% at most; SVGD and multi-start shrink it).
+ESS = {"emcee": 0.5, "nuts": "chain"}   # correlated particles: the allowances of test_emcee and test_nuts
+SLOW = {"emcee", "nuts"}                # experiment-sized cases (as test_emcee and test_nuts)
+
+
+def test_every_registered_sampler_has_cases():
+    assert set(CASES) == {(s, t) for s in SAMPLERS for t in TARGETS}
+
+
+@pytest.mark.parametrize("sampler", [pytest.param(s, marks=pytest.mark.slow) if s in SLOW else s for s in SAMPLERS])
+def test_every_sampler_gets_the_gaussian_mean_without_widening_it(sampler):
+    t = TARGETS["gaussian10"]
+    z = samples(sampler, "gaussian10")
+    ess = chain_ess(z, t) if ESS.get(sampler) == "chain" else ESS.get(sampler, 1.0)
+    fails = check_moments(z, t, ess=ess, narrower_ok=True)
+    assert not fails, fails
+
+
 # ----------------------------------------------------------------------------- the bounds can fail
 def test_bounds_accept_exact_draws():
     for name, t in TARGETS.items():
@@ -271,6 +296,13 @@ def test_bounds_accept_exact_draws():
 ])
 def test_bounds_reject_draws_from_a_wrong_target(wrong, right):
     assert check_moments(wrong.sample(1000, seed=11), TARGETS[right])
+
+
+def test_the_shared_check_rejects_a_widened_variance_not_a_narrower_one():
+    t = TARGETS["gaussian10"]
+    assert check_moments(CorrelatedGaussian(scale_max=2.4).sample(1000, seed=11), t, narrower_ok=True)
+    narrow = CorrelatedGaussian(scale_max=1.6).sample(1000, seed=11)
+    assert check_moments(narrow, t) and not check_moments(narrow, t, narrower_ok=True)
 
 
 def test_bounds_reject_a_sampler_at_the_wrong_temperature():
