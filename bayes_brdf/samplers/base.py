@@ -58,9 +58,10 @@ _NO_EXTRAS: Mapping[str, float] = MappingProxyType({})
 
 
 class Info(NamedTuple):
-    """What one step reports: ``energy`` ``[n]`` (the energies of the particles the step started from,
-    or ``None``) and sampler-specific ``extras`` (SPOS/SVGD ``gamma``, SGLD/NUTS ``step_size``, emcee
-    ``accepted``).
+    """What one step reports: ``energy``, the energies it evaluated (SPOS, SVGD, SGLD, multi-start: ``[n]``
+    of the particles it started from; emcee: ``[n]`` of the walkers it ends with; NUTS: the chain's,
+    ``[1]``), or ``None``; and sampler-specific ``extras`` (SPOS/SVGD ``gamma``, SGLD/NUTS
+    ``step_size``, emcee ``accepted``).
 
     It also reads as the mapping ``info`` used to be (``info["energy"]``, ``info.get("gamma")``,
     ``"gamma" in info``), so callbacks written for a dict keep working.

@@ -52,8 +52,8 @@ from torch import Tensor
 from ..errors import InputError
 from .base import Info, Sampler
 from .config import Configurable
-from .numerics import Preconditioner, anneal, precond_init, precond_update
 from .kernels import kernel_apply, rbf_median
+from .numerics import Preconditioner, anneal, precond_init, precond_update
 
 
 class SPOSState(NamedTuple):

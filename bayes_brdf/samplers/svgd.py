@@ -18,8 +18,8 @@ from torch import Tensor
 from ..errors import InputError
 from .base import Info, Sampler
 from .config import Configurable
-from .numerics import adam_direction, anneal
 from .kernels import kernel_apply, rbf_median
+from .numerics import adam_direction, anneal
 
 
 class SVGDState(NamedTuple):

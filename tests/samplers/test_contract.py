@@ -15,17 +15,9 @@ from bayes_brdf.samplers import SAMPLERS, Info, Sampler, run
 from bayes_brdf.samplers.base import Potential
 from bayes_brdf.samplers.targets import Banana
 
-from .test_driver import N, PARAMS, STEPS
+from .test_driver import N, PARAMS, STEPS, _one_thread  # noqa: F401  (its autouse fixture: one torch thread)
 
 NAMES = list(SAMPLERS)
-
-
-@pytest.fixture(autouse=True)
-def _one_thread():
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
 
 
 def _run(sampler, potential=None, **kw):
