@@ -125,8 +125,8 @@ def _conclusion(curves) -> str:
 
 def _real_capture(rep, path, out: Path, cfg, progress, log) -> dict:
     """Section 6: fit half the views of a real capture, check the uncertainty on the other half, rank them."""
-    from .cli.fit import fitted_noise, heldout_report
     from .io import load_capture
+    from .runs.heldout import fitted_noise, heldout_report
 
     t = time.perf_counter()
     full = load_capture(path, resolution=int(cfg["capture_resolution"]))

@@ -63,9 +63,13 @@ def digest_tensor(t) -> str:
     return h.hexdigest()[:16]
 
 
-def data_digest(data) -> str:
-    """The digest of a :class:`~bayes_brdf.models.data.ModelData`: its observations and pixel weights."""
-    h = hashlib.sha256(observations_digest(data.observations).encode())
+def data_digest(data, observations: str | None = None) -> str:
+    """The digest of a :class:`~bayes_brdf.models.data.ModelData`: its observations and pixel weights.
+
+    ``observations``: the :func:`observations_digest` of ``data.observations`` when the caller has it
+    already (the photos are then hashed once per run); computed here by default.
+    """
+    h = hashlib.sha256((observations or observations_digest(data.observations)).encode())
     _update(h, data.weight)
     h.update(repr(float(data.scale)).encode())
     return h.hexdigest()[:16]

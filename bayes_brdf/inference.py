@@ -42,7 +42,7 @@ def infer(model: "Callable | str | dict", observations: "Observations | ModelDat
           params: dict | None = None,
           checkpoint: "str | os.PathLike | None" = None, progress: bool | None = None, dtype=torch.float32,
           device: "str | torch.device | None" = None, callbacks=(), z0: "torch.Tensor | None" = None,
-          map_steps: int | None = None) -> Posterior:
+          map_steps: int | None = None, observations_digest: str | None = None) -> Posterior:
     """Sample the posterior of ``model`` given ``observations`` with ``sampler``.
 
     Args:
@@ -62,6 +62,9 @@ def infer(model: "Callable | str | dict", observations: "Observations | ModelDat
             warm-start after adding views); by default prior draws.
         map_steps: Adam steps refining the MAP from the best particle (Eq. 7; 0: the best particle;
             default ``min(300, steps)``: no longer than the run itself).
+        observations_digest: :func:`~bayes_brdf.identity.observations_digest` of ``observations`` when
+            the caller computed it already (e.g. for its own run folder), so the photos are hashed once
+            per run; by default computed here. It goes into the checkpoint's fingerprint.
 
     The run's convergence checks land in ``post.diagnostics``; when one fails a
     :class:`~bayes_brdf.errors.ConvergenceWarning` says which and what to do.
@@ -102,7 +105,7 @@ def infer(model: "Callable | str | dict", observations: "Observations | ModelDat
             raise InputError(f"z0 has shape {tuple(z0.shape)}, expected [particles, {pot.dim}]",
                              fix="pass a posterior's z from the same model")
         kw["particles"] = z0.shape[0]
-    identity = fingerprint(data=data_digest(data), model=model_description(model), seed=seed,
+    identity = fingerprint(data=data_digest(data, observations_digest), model=model_description(model), seed=seed,
                            start="prior" if z0 is None else digest_tensor(z0))
     res = run(smp, pot, seed=seed, checkpoint=checkpoint, progress=progress, callbacks=callbacks, z0=z0,
               identity=identity, **kw)

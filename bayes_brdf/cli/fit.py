@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import sys
 import time
-from pathlib import Path
 
 from .common import check_views, view_list
 from .infer import add_sampling_args, convergence_note, load, sample, timing, write_posterior
@@ -48,74 +47,11 @@ def _split(n: int, views, holdout):
     return fit, held
 
 
-def fitted_noise(post, obs) -> float:
-    """Laplace scale of the MAP's residuals on the fitted photos (mean |R - y| over usable pixels):
-    the noise level the data show, to compare with the model's ``sigma``."""
-    from ..models.data import ModelData
-    from ..render.shade import render
-
-    d = ModelData.from_observations(obs)
-    pred = render(post.maps("map"), obs.views, obs.surface)[0]
-    w = d.weight > 0
-    return float((pred - d.images.to(pred)).abs()[w].mean())
-
-
-def heldout_report(post, obs, out: Path, fitted_sigma: float | None = None) -> dict:
-    """Image-space std, MAP error maps and calibration numbers on the held-out ``obs``."""
-    import torch
-
-    from ..io import write_png
-    from ..render.gbuffer import GBuffer
-    from ..render.shade import render
-    from ..uncertainty import correlations, coverage, predictive_cdf, write_map
-
-    F, std, mean = predictive_cdf(post, obs.views, obs.images, obs.surface)
-    pred = render(post.maps("map"), obs.views, obs.surface)[0]
-    y = obs.images.to(pred)
-    err = (pred - y).abs()
-    inside = GBuffer.build(obs.views, obs.surface).mask
-    valid = inside.clone()
-    sat = obs.saturated & inside if obs.saturated is not None else torch.zeros_like(inside)
-    n_sat = int(sat.sum())
-    if obs.mask is not None:
-        valid &= obs.mask
-    valid &= ~sat
-    # one colour range for a view's error and std maps (and for every held-out view): they are compared by eye
-    both = torch.cat([err[valid].flatten()[:1_000_000], std[valid].flatten()[:1_000_000]])
-    vmax = float(torch.quantile(both, 0.99)) if both.numel() else 1.0
-    per_view = []
-    for j, v in enumerate(obs.views):
-        tag = f"view_{obs.meta.get('indices', list(range(len(obs))))[j]:02d}"
-        masks = {"clipped in the photo (left out)": sat[j], "not the sample": ~inside[j]}
-        if obs.mask is not None:
-            masks["masked out"] = inside[j] & ~obs.mask[j] & ~sat[j]
-        write_map(out / "heldout" / f"{tag}_std", std[j], title=f"{tag}: image-space std (Eq. 11)", vmax=vmax,
-                  masks=masks)
-        write_map(out / "heldout" / f"{tag}_error", err[j], title=f"{tag}: |MAP render - photo|", vmax=vmax,
-                  masks=masks)
-        write_png(out / "heldout" / f"{tag}_map_render.png", pred[j].clamp(0, 1).cpu().numpy())
-        write_png(out / "heldout" / f"{tag}_photo.png", y[j].clamp(0, 1).cpu().numpy())
-        vm = valid[j]
-        rec = {"view": tag, "pixels": int(vm.sum()), "mean_abs_error": float(err[j][vm].mean()),
-               "mean_std": float(std[j][vm].mean()), **correlations(std[j][vm], err[j][vm]),
-               "coverage": coverage(F[j][vm])}
-        per_view.append(rec)
-    vv = valid[..., None].expand_as(err)
-    extra = {}
-    if fitted_sigma:
-        F2, _, _ = predictive_cdf(post, obs.views, obs.images, obs.surface, sigma=fitted_sigma)
-        extra = {"fitted_sigma": fitted_sigma, "coverage_with_fitted_sigma": coverage(F2[vv])}
-    return {**extra, "pixels": int(valid.sum()), "saturated_left_out": n_sat, "map_range": [0.0, vmax],
-            "mean_abs_error": float(err[vv].mean()), "mean_std": float(std[vv].mean()),
-            **correlations(std[vv], err[vv]),
-            "correlation_posterior_mean": correlations(std[vv], (mean - y).abs()[vv]),
-            "coverage": coverage(F[vv]), "views": per_view}
-
-
 def run(a) -> int:
     import torch
 
     from ..io.outputs import write_json
+    from ..runs.heldout import fitted_noise, heldout_report
 
     t0 = time.perf_counter()
     _, full, out = load(a, "fit", full=True)

@@ -7,7 +7,7 @@ import warnings
 from pathlib import Path
 
 from .common import check_views, key_value, particles_arg, positive_int, steps_arg, view_list
-from .run_folder import claim_folder, log_run, model_table, output_folder
+from .run_folder import claim_folder, log_run, output_folder
 
 
 def add_sampling_args(f, default_out: str):
@@ -70,20 +70,23 @@ def sample(a, obs, out: Path):
     invocation is appended to ``out/run_log.jsonl``.
     """
     from ..errors import ConvergenceWarning
+    from ..identity import observations_digest
     from ..inference import infer
+    from ..runs.fingerprint import model_table
     from ..samplers.driver import Interrupted
 
-    status = claim_folder(a, obs)
+    table = model_table(a.model, dict(a.model_param), obs.resolution[0])
+    digest = observations_digest(obs)       # once per run: the folder's fingerprint and the checkpoint's
+    status = claim_folder(a, obs, table, digest)
     if status == "overwritten":
         print(f"bayes-brdf: --overwrite: starting over in {out}", file=sys.stderr)
-    table = model_table(a, obs)
     t = time.perf_counter()
     try:
         with warnings.catch_warnings():         # the CLI says it in its own terms (convergence_note)
             warnings.simplefilter("ignore", ConvergenceWarning)
             post = infer(table, obs, a.sampler or "spos", seed=a.seed, particles=a.particles, steps=a.steps,
                          params=dict(a.param) or None, checkpoint=out / "checkpoint.pt",
-                         progress=sys.stderr.isatty(), device=a.device)
+                         progress=sys.stderr.isatty(), device=a.device, observations_digest=digest)
     except Interrupted as e:
         log_run(out, {"status": f"interrupted at step {e.step}", "wall_seconds": time.perf_counter() - t})
         raise

@@ -48,42 +48,17 @@ def _views_label(views) -> str:
     return "all views" if views is None else "views " + ",".join(str(v) for v in views)
 
 
-def model_table(a, obs) -> dict:
-    """The model preset table of ``a`` with its ``--model-param`` overrides (a per_texel model gets the
-    photos' resolution unless overridden): what is sampled, and what the fingerprint records."""
-    from ..presets import load_preset
+def claim_folder(a, obs, model: dict, data: str) -> str:
+    """Claim ``a.out`` for this run (see module doc): the run of ``a``'s options on the loaded ``obs``
+    with the model table ``model`` (:func:`~bayes_brdf.runs.fingerprint.model_table`) and the photos'
+    digest ``data``; ``"new"``, ``"same"`` or ``"overwritten"``."""
+    from ..io.outputs import claim
+    from ..runs.fingerprint import run_fingerprint
 
-    table = dict(load_preset("models", a.model))
-    table.update(dict(a.model_param))
-    if table.get("model") == "per_texel" and "resolution" not in dict(a.model_param):
-        table["resolution"] = obs.resolution[0]
-    if table.get("model") == "latent_decoder" and "weights_digest" not in table:
-        from ..models.latent_decoder import weights_digest   # other weights, another run (and a refused resume)
-        table["weights_digest"] = weights_digest(table.get("weights", "latent_decoder_64"))
-    return table
-
-
-def run_fingerprint(a, obs) -> tuple[dict, str]:
-    """The fingerprint of ``a``'s sampling run on the loaded ``obs`` and a short label for messages."""
-    from ..identity import fingerprint, observations_digest
-    from ..presets import load_preset
-
-    model = model_table(a, obs)
-    sampler = dict(load_preset("samplers", a.sampler or "spos"))
-    fp = fingerprint(data=observations_digest(obs), model=model, seed=a.seed,
-                     views=a.views, resolution=list(obs.resolution),
-                     sampler={"preset": sampler, "params": dict(a.param), "particles": a.particles,
-                              "steps": a.steps})
+    fp = run_fingerprint(data, model=model, sampler=a.sampler, params=dict(a.param), particles=a.particles,
+                         steps=a.steps, seed=a.seed, views=a.views, resolution=list(obs.resolution))
     label = (f"{capture_name(a.capture)} ({_views_label(a.views)}, {obs.resolution[0]} px, model {a.model}, "
              f"sampler {a.sampler or 'spos'}, seed {a.seed})")
-    return fp, label
-
-
-def claim_folder(a, obs) -> str:
-    """Claim ``a.out`` for this run (see module doc); ``"new"``, ``"same"`` or ``"overwritten"``."""
-    from ..io.outputs import claim
-
-    fp, label = run_fingerprint(a, obs)
     return claim(a.out, fp, label, overwrite=getattr(a, "overwrite", False), owned=OWNED)
 
 

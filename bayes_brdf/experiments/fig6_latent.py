@@ -35,9 +35,8 @@ from ..inference import infer
 from ..materials.augment import HELD_OUT_SEED
 from ..models.latent_decoder import latent_decoder
 from ..models.material import per_texel
-from ..render.gbuffer import GBuffer
-from ..render.shade import render
-from ..uncertainty import CMAP, correlations, coverage, predictive_cdf
+from ..runs.heldout import predict
+from ..uncertainty import CMAP, correlations, coverage
 
 DESCRIPTION = "Fig. 6: latent-space (MaterialGAN-style decoder) posterior vs per-texel: std vs error, coverage, time"
 
@@ -61,11 +60,7 @@ def _psnr(a: torch.Tensor, b: torch.Tensor) -> float:
 def score(post, views, images, surface, mask=None) -> dict:
     """``(numbers, std, error, MAP render)`` on ``views`` with observed ``images``: Eq. 11 std vs the MAP's
     error, predictive coverage, MAP error; ``mask [V, H, W]`` selects the pixels scored."""
-    F, std, _ = predictive_cdf(post, views, images, surface)
-    pred = render(post.maps("map"), views, surface)[0]
-    y = images.to(pred)
-    err = (pred - y).abs()
-    valid = GBuffer.build(views, surface).mask
+    F, std, _, pred, y, err, valid = predict(post, views, images, surface)
     if mask is not None:
         valid = valid & mask
     v3 = valid[..., None].expand_as(err)

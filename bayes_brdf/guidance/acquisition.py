@@ -208,7 +208,8 @@ def guided_acquisition(model: "Callable | str", initial: Observations, candidate
         else:
             t0 = time.perf_counter()
             post = infer(model, obs, sampler, seed=seed + r, particles=particles, steps=steps, params=params,
-                         progress=progress, z0=z if warm_start else None, map_steps=map_steps)
+                         progress=progress, z0=z if warm_start else None, map_steps=map_steps,
+                         observations_digest=fp["data"] if fp is not None else None)
             t_fit = time.perf_counter() - t0
             metrics = evaluation(post, surface) if evaluation is not None else {}
             t1 = time.perf_counter()
