@@ -4,25 +4,21 @@ from __future__ import annotations
 import argparse
 import tomllib
 
+from .. import checks
+
 
 def positive_int(s: str) -> int:
     try:
-        v = int(s)
-    except ValueError:
+        return checks.count(int(s), "value", least=1)
+    except ValueError:          # not an integer, or below 1 (an InputError is a ValueError)
         raise argparse.ArgumentTypeError(f"expected a positive integer, got '{s}'") from None
-    if v < 1:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got '{s}'")
-    return v
 
 
 def positive_float(s: str) -> float:
     try:
-        v = float(s)
-    except ValueError:
+        return checks.positive(float(s), "value")
+    except ValueError:          # not a number, or not positive and finite
         raise argparse.ArgumentTypeError(f"expected a positive number, got '{s}'") from None
-    if not v > 0:
-        raise argparse.ArgumentTypeError(f"expected a positive number, got '{s}'")
-    return v
 
 
 def key_value(s: str) -> tuple[str, object]:

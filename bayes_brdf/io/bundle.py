@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from .. import checks
 from ..errors import InputError
 from ..observations import Observations
 from ..render.scene import surface_from_state, surface_state
@@ -195,9 +196,7 @@ def load_observations(directory) -> Observations:
         if full is None:
             x = torch.from_numpy(np.ascontiguousarray(rgb, dtype=np.float32))
         else:
-            scale = e.get("scale", 1.0)
-            if not isinstance(scale, (int, float)) or not math.isfinite(scale) or scale <= 0:
-                raise InputError(f"views[{i}].scale must be a positive number, got {scale!r}", where=jf)
+            scale = checks.positive(e.get("scale", 1.0), f"views[{i}].scale", where=jf)
             enc = torch.from_numpy(rgb.astype(np.float64)) / full
             x = (srgb_to_linear(enc, doc.get("png_curve") or _PNG_CURVE) * scale).to(torch.float32)
         if not bool(torch.isfinite(x).all()):

@@ -41,6 +41,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from .. import checks
 from ..errors import InputError
 from ..observations import Observations
 from ..render.cameras import RectifiedCamera
@@ -63,43 +64,16 @@ _IMAGE_NAME = re.compile(r"^(\d+)\.png$", re.IGNORECASE)
 
 # ------------------------------------------------------------------ small parsers
 def _finite_vec3(v, where, what) -> tuple[float, float, float]:
-    try:
-        t = tuple(float(x) for x in v)
-    except (TypeError, ValueError):
-        t = ()
-    if len(t) != 3:
-        raise InputError(f"{what} must be three numbers x,y,z, got {v!r}", where=where)
-    if not all(math.isfinite(x) for x in t):
-        raise InputError(f"{what} is not finite: {t}", where=where, fix="give finite x,y,z positions in cm")
-    return t
+    return checks.vec3(v, what, where=where, fix="give finite x,y,z positions in cm")
 
 
 def _power(v, where) -> tuple[float, float, float]:
-    if isinstance(v, (int, float)) and not isinstance(v, bool):
-        v = [v, v, v]
-    try:
-        p = tuple(float(x) for x in v)
-    except (TypeError, ValueError):
-        p = ()
-    if len(p) == 1:
-        p = p * 3
-    if len(p) != 3:
-        raise InputError(f"light power must be one number or three (R,G,B), got {v!r}", where=where)
-    if not all(math.isfinite(x) and x >= 0 for x in p):
-        raise InputError(f"light power must be finite and non-negative, got {p}", where=where,
-                         fix="give the flash power as R,G,B >= 0 (e.g. 1500,1500,1500)")
-    return p
+    return checks.rgb(v, "light power", where=where, fix="give the flash power as R,G,B >= 0 (e.g. 1500,1500,1500)")
 
 
 def _size_cm(v, where) -> float:
-    try:
-        s = float(v[0] if isinstance(v, (list, tuple)) and len(v) == 1 else v)
-    except (TypeError, ValueError, IndexError):
-        raise InputError(f"sample size must be one number (cm), got {v!r}", where=where) from None
-    if not (math.isfinite(s) and s > 0):
-        raise InputError(f"sample size must be a positive finite number of cm, got {s}", where=where,
-                         fix="give the side of the photographed square in cm")
-    return s
+    return checks.positive(v[0] if isinstance(v, (list, tuple)) and len(v) == 1 else v, "sample size (cm)",
+                           where=where, fix="give the side of the photographed square in cm")
 
 
 def _read_text_rows(path: Path) -> list[list[float]]:

@@ -57,6 +57,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from .. import checks
 from ..errors import InputError
 from ..observations import Observations
 from ..render.cameras import PerspectiveCamera
@@ -81,41 +82,13 @@ def is_transforms_file(p: Path) -> bool:
 
 
 # ------------------------------------------------------------------ small parsers
-def _number(v, where, key: str, *, positive: bool = False) -> float:
-    if isinstance(v, bool) or not isinstance(v, (int, float)):
-        raise InputError(f"{key} must be a number, got {v!r}", where=where)
-    x = float(v)
-    if not math.isfinite(x):
-        raise InputError(f"{key} is not finite ({v!r})", where=where, fix="give finite numbers")
-    if positive and x <= 0:
-        raise InputError(f"{key} must be > 0, got {v!r}", where=where)
-    return x
-
-
-def _vec3(v, where, key: str) -> np.ndarray:
-    if not isinstance(v, (list, tuple)) or len(v) != 3:
-        raise InputError(f"{key} must be three numbers [x, y, z], got {v!r}", where=where)
-    return np.array([_number(x, where, key) for x in v])
-
-
-def _power(v, where, key: str) -> np.ndarray:
-    if isinstance(v, (int, float)) and not isinstance(v, bool):
-        v = [v] * 3
-    if not isinstance(v, (list, tuple)) or len(v) not in (1, 3):
-        raise InputError(f"{key} must be one number or three [r, g, b], got {v!r}", where=where)
-    p = np.array([_number(x, where, key) for x in v] * (3 if len(v) == 1 else 1))
-    if (p < 0).any():
-        raise InputError(f"{key} must be non-negative, got {v!r}", where=where)
-    return p
-
-
 def _matrix(v, where, key: str) -> np.ndarray:
     ok = isinstance(v, (list, tuple)) and len(v) == 4 and all(isinstance(r, (list, tuple)) and len(r) == 4 for r in v)
     if not ok:
         shape = (f"{len(v)} rows" if isinstance(v, (list, tuple)) else type(v).__name__)
         raise InputError(f"{key} must be a 4x4 list of rows, got {shape}", where=where,
                          fix="give the 4x4 camera-to-world matrix [[r00, r01, r02, tx], ..., [0, 0, 0, 1]]")
-    m = np.array([[_number(x, where, key) for x in r] for r in v])
+    m = np.array([[checks.finite(x, key, where=where) for x in r] for r in v])
     if np.abs(m[3] - (0, 0, 0, 1)).max() > 1e-6:
         raise InputError(f"{key} is not rigid (last row {m[3].tolist()}, expected [0, 0, 0, 1])", where=where,
                          fix="give a camera-to-world rotation + translation")
@@ -140,12 +113,12 @@ def _intrinsics(top: dict, frame: dict, i: int, where) -> dict:
         if src is None:
             continue
         key = f"frames[{i}].{k}" if src is frame else k
-        out[k] = _number(src[k], where, key, positive=k not in ("cx", "cy"))
+        out[k] = (checks.finite if k in ("cx", "cy") else checks.positive)(src[k], key, where=where)
         out[k + "@"] = key
     for k in _DISTORTION:
         v = frame.get(k, top.get(k, 0.0))
         key = f"frames[{i}].{k}" if k in frame else k
-        if _number(v, where, key) != 0:
+        if checks.finite(v, key, where=where) != 0:
             raise InputError(f"{key} = {v!r}: lens distortion is not supported yet", where=where, fix=_FIX)
     model = frame.get("camera_model", top.get("camera_model"))
     if model is not None and (not isinstance(model, str) or model.upper() not in _PINHOLE_MODELS):
@@ -268,9 +241,11 @@ def _read_mask(p: Path, shape, what: str, where) -> torch.Tensor:
 # ------------------------------------------------------------------ loading
 def _frame_light(top_light, frame: dict, i: int, cam_pos: np.ndarray, rot, s: float, where):
     """``(position [3], power [3])`` in cm of frame ``i``'s light (``cam_pos`` already in cm)."""
-    fpow = _power(frame["light_power"], where, f"frames[{i}].light_power") if "light_power" in frame else None
+    fpow = None
+    if "light_power" in frame:
+        fpow = np.array(checks.rgb(frame["light_power"], f"frames[{i}].light_power", where=where))
     if "light_position" in frame:
-        pos = s * (rot @ _vec3(frame["light_position"], where, f"frames[{i}].light_position"))
+        pos = s * (rot @ np.array(checks.vec3(frame["light_position"], f"frames[{i}].light_position", where=where)))
         power = fpow if fpow is not None else (top_light or {}).get("power")
         if power is None:
             raise InputError(f"frames[{i}] has a light_position but no light power", where=where,
@@ -296,12 +271,12 @@ def _top_light(d: dict, rot, s: float, where):
         raise InputError(f"unknown light.type {kind!r}", where=where, fix="use collocated or point")
     if "power" not in L:
         raise InputError("light.power is missing", where=where, fix="give the light power [r, g, b]")
-    out = {"type": kind, "power": _power(L["power"], where, "light.power")}
+    out = {"type": kind, "power": np.array(checks.rgb(L["power"], "light.power", where=where))}
     if kind == "point":
         if "position" not in L:
             raise InputError("light.position is missing for a point light", where=where,
                              fix="give light.position [x, y, z] (in 'units'), or use type collocated")
-        out["position"] = s * (rot @ _vec3(L["position"], where, "light.position"))
+        out["position"] = s * (rot @ np.array(checks.vec3(L["position"], "light.position", where=where)))
     return out
 
 

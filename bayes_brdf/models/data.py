@@ -6,6 +6,7 @@ from dataclasses import dataclass, replace
 import torch
 from torch import Tensor
 
+from .. import checks
 from ..errors import InputError
 from ..observations import Observations
 from ..render.gbuffer import GBUFFERS, GBuffer
@@ -121,16 +122,14 @@ class ModelData:
         """
         d, scale = self, self.scale
         if views is not None and views < self.num_views:
-            if views < 1:
-                raise InputError(f"minibatch views must be >= 1, got {views}")
+            checks.count(views, "minibatch views", least=1)
             idx = torch.randperm(self.num_views, generator=generator)[:views].sort().values
             d = replace(d, gbuffer=d.gbuffer.views_index(idx), images=d.images[idx.to(d.device)],
                         weight=d.weight[idx.to(d.device)],
                         censored=None if d.censored is None else d.censored.views_index(idx))
             scale *= self.num_views / views
         if pixels is not None and pixels < 1.0:
-            if not 0.0 < pixels:
-                raise InputError(f"minibatch pixel fraction must be in (0, 1], got {pixels}")
+            checks.fraction(pixels, "minibatch pixel fraction")
             keep = torch.rand(d.weight.shape, generator=generator) < pixels
             d = replace(d, weight=d.weight * keep.to(d.device, d.dtype))
             if d.censored is not None:

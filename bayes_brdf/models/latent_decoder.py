@@ -42,6 +42,7 @@ from pyro.distributions import TorchDistribution
 from torch import Tensor
 from torch.distributions import constraints
 
+from .. import checks
 from ..errors import InputError
 from .base import ObservedModel
 from .data import ModelData
@@ -144,13 +145,9 @@ class LatentDecoder(ObservedModel):
         if self.noise not in NOISE:
             raise InputError(f"latent_decoder noise must be one of {', '.join(NOISE)}, got {self.noise!r}")
         for k in ("prior_scale", "project_lr"):
-            v = getattr(self, k)
-            if not (isinstance(v, (int, float)) and not isinstance(v, bool) and 0 < v < float("inf")):
-                raise InputError(f"latent_decoder {k} must be a positive number, got {v!r}")
+            checks.positive(getattr(self, k), f"latent_decoder {k}")
         for k in ("project_steps", "project_alternate"):
-            v = getattr(self, k)
-            if not (isinstance(v, int) and not isinstance(v, bool) and v >= 0):
-                raise InputError(f"latent_decoder {k} must be a non-negative integer, got {v!r}")
+            checks.count(getattr(self, k), f"latent_decoder {k}")
         if not (isinstance(self.init_spread, (int, float)) and self.init_spread >= 0):
             raise InputError(f"latent_decoder init_spread must be >= 0, got {self.init_spread!r}")
         g, noise, digest = load_generator(self.weights)

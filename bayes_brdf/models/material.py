@@ -19,6 +19,7 @@ import pyro.distributions as dist
 import torch
 from torch import Tensor
 
+from .. import checks
 from ..errors import InputError
 from ..render.maps import SVBRDF
 from . import priors as P
@@ -103,8 +104,7 @@ class PerTexel(MaterialModel):
 
     def __post_init__(self):
         super().__post_init__()
-        if not (isinstance(self.resolution, int) and self.resolution >= 1):
-            raise InputError(f"resolution must be a positive integer, got {self.resolution!r}")
+        checks.count(self.resolution, "resolution", least=1)
         if isinstance(self.normals, str) and self.normals not in ("flat", "infer"):
             raise InputError(f"normals must be 'flat', 'infer' or a map, got {self.normals!r}")
 

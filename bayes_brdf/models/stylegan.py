@@ -31,6 +31,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
+from .. import checks
 from ..errors import InputError
 
 
@@ -52,9 +53,7 @@ class GeneratorConfig:
         if not (isinstance(r, int) and r >= 8 and r & (r - 1) == 0):
             raise InputError(f"generator resolution must be a power of two >= 8, got {r!r}")
         for k in ("w_dim", "z_dim", "mapping_layers", "fmaps_base", "fmaps_max", "out_channels"):
-            v = getattr(self, k)
-            if not (isinstance(v, int) and v >= 1):
-                raise InputError(f"generator {k} must be a positive integer, got {v!r}")
+            checks.count(getattr(self, k), f"generator {k}", least=1)
 
     @property
     def resolutions(self) -> list[int]:

@@ -20,17 +20,8 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
+from ..checks import vec3
 from ..errors import InputError
-
-
-def _vec3(v, name) -> tuple[float, float, float]:
-    try:
-        t = tuple(float(x) for x in v)
-    except TypeError:
-        t = ()
-    if len(t) != 3 or not all(math.isfinite(x) for x in t):
-        raise InputError(f"{name} must be three finite numbers, got {v!r}")
-    return t
 
 
 def _resolution(res) -> tuple[int, int]:
@@ -63,9 +54,9 @@ class PerspectiveCamera:
     resolution: tuple[int, int] = (128, 128)
 
     def __post_init__(self):
-        object.__setattr__(self, "position", _vec3(self.position, "camera position"))
-        object.__setattr__(self, "target", _vec3(self.target, "camera target"))
-        object.__setattr__(self, "up", _vec3(self.up, "camera up"))
+        object.__setattr__(self, "position", vec3(self.position, "camera position"))
+        object.__setattr__(self, "target", vec3(self.target, "camera target"))
+        object.__setattr__(self, "up", vec3(self.up, "camera up"))
         object.__setattr__(self, "resolution", _resolution(self.resolution))
         if not 0 < float(self.fov) < 180:
             raise InputError(f"camera fov must be in (0, 180) degrees, got {self.fov}")
@@ -112,5 +103,5 @@ class RectifiedCamera:
     resolution: tuple[int, int] = (256, 256)
 
     def __post_init__(self):
-        object.__setattr__(self, "position", _vec3(self.position, "camera position"))
+        object.__setattr__(self, "position", vec3(self.position, "camera position"))
         object.__setattr__(self, "resolution", _resolution(self.resolution))

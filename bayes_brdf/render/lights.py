@@ -9,14 +9,13 @@ A collocated flash is a point light at the camera position (see
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import torch
 from torch import Tensor
 
+from ..checks import rgb, vec3
 from ..errors import InputError
-from .cameras import _vec3
 
 
 @dataclass
@@ -44,14 +43,8 @@ class PointLight:
     falloff: bool = True
 
     def __post_init__(self):
-        object.__setattr__(self, "position", _vec3(self.position, "light position"))
-        p = self.power
-        if isinstance(p, (int, float)):
-            p = (p, p, p)
-        p = _vec3(p, "light power")
-        if min(p) < 0 or not all(math.isfinite(x) for x in p):
-            raise InputError(f"light power must be finite and non-negative, got {p}")
-        object.__setattr__(self, "power", p)
+        object.__setattr__(self, "position", vec3(self.position, "light position"))
+        object.__setattr__(self, "power", rgb(self.power, "light power"))
 
     def incident(self, position: Tensor, mask: Tensor, visible: Tensor | None = None, where: str = "") -> Incident:
         """The light at surface points ``position [3, H, W]`` (float64) where ``mask [H, W]``; ``visible [H, W]``

@@ -47,6 +47,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from .. import checks
 from ..errors import InputError
 
 #: metres per unit of each length unit a file may be in
@@ -481,7 +482,7 @@ class Mesh:
             raise InputError(f"a mesh cannot represent the {grid!r} texel grid", where="Mesh.plane(grid=...)",
                              fix="use grid='centers' (uv sample with align_corners=False), "
                                  "or PlanarSample for 'endpoints'")
-        size = _positive(size, "Mesh.plane(size=...)")
+        size = checks.positive(size, "size", where="Mesh.plane(size=...)")
         h = size / 2
         b = _Builder()
         b.quad((0, 0, 0), (h, 0, 0), (0, h, 0), (0.0, 0.0, 1.0, 1.0))
@@ -503,9 +504,9 @@ class Mesh:
             >>> m.num_faces, bool(np.allclose(np.linalg.norm(m.vertices, axis=1), 1))
             (48, True)
         """
-        radius = _positive(radius, "Mesh.sphere(radius=...)")
+        radius = checks.positive(radius, "radius", where="Mesh.sphere(radius=...)")
         rings, segments = _count(rings, 2, "rings"), _count(segments, 3, "segments")
-        c = _point(center, "Mesh.sphere(center=...)")
+        c = np.array(checks.vec3(center, "center", where="Mesh.sphere(center=...)", fix="e.g. (0, 0, 0)"))
         theta = np.pi * np.arange(rings + 1) / rings
         r, z = np.sin(theta), np.cos(theta)
         r[[0, -1]] = 0.0
@@ -536,9 +537,9 @@ class Mesh:
             >>> m.num_faces, [round(float(x), 6) for x in m.bounds[1]]
             (128, [1.0, 1.0, 0.55])
         """
-        radius = _positive(radius, "Mesh.bowl(radius=...)")
-        depth = _positive(depth, "Mesh.bowl(depth=...)")
-        t = _positive(thickness, "Mesh.bowl(thickness=...)")
+        radius = checks.positive(radius, "radius", where="Mesh.bowl(radius=...)")
+        depth = checks.positive(depth, "depth", where="Mesh.bowl(depth=...)")
+        t = checks.positive(thickness, "thickness", where="Mesh.bowl(thickness=...)")
         if t >= radius:
             raise InputError(f"thickness {t} must be below radius {radius}", where="Mesh.bowl(thickness=...)",
                              fix="use a thinner wall")
@@ -590,7 +591,7 @@ class Mesh:
             >>> m.num_faces, m.bounds[1].tolist()
             (12, [1.0, 1.0, 1.0])
         """
-        size = _positive(size, "Mesh.block_on_plane(size=...)")
+        size = checks.positive(size, "size", where="Mesh.block_on_plane(size=...)")
         try:
             bx, by, bz = (float(x) for x in block)
         except (TypeError, ValueError):
@@ -616,31 +617,8 @@ class Mesh:
 
 
 # ---------------------------------------------------------------------- helpers
-def _positive(x, where: str) -> float:
-    try:
-        x = float(x)
-    except (TypeError, ValueError):
-        raise InputError(f"expected a number, got {x!r}", where=where, fix="give a positive number") from None
-    if not (math.isfinite(x) and x > 0):
-        raise InputError(f"must be > 0, got {x}", where=where, fix="give a positive number")
-    return x
-
-
 def _count(n, least: int, what: str) -> int:
-    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < least:
-        raise InputError(f"{what} must be an integer >= {least}, got {n!r}", where=f"{what}=",
-                         fix=f"use {what} >= {least}")
-    return int(n)
-
-
-def _point(p, where: str) -> np.ndarray:
-    try:
-        a = np.asarray(p, dtype=np.float64)
-    except (TypeError, ValueError):
-        a = np.zeros(0)
-    if a.shape != (3,) or not np.all(np.isfinite(a)):
-        raise InputError(f"expected a finite point (x, y, z), got {p!r}", where=where, fix="e.g. (0, 0, 0)")
-    return a
+    return checks.count(n, what, least=least, where=f"{what}=", fix=f"use {what} >= {least}")
 
 
 class _Builder:
@@ -793,10 +771,7 @@ def _xatlas(vertices, faces, resolution, padding, *, where):
     import xatlas
 
     resolution = _count(resolution, 8, "atlas_resolution")
-    if isinstance(padding, bool) or not isinstance(padding, (int, np.integer)) or padding < 0:
-        raise InputError(f"atlas_padding must be an integer >= 0, got {padding!r}", where=where,
-                         fix="use e.g. atlas_padding=2")
-    padding = int(padding)
+    padding = checks.count(padding, "atlas_padding", where=where, fix="use e.g. atlas_padding=2")
     pos = np.asarray(vertices, np.float64)
     pos = (pos - 0.5 * (pos.min(0) + pos.max(0))).astype(np.float32)   # centred: float32 keeps precision
     faces = np.asarray(faces, np.int64)

@@ -17,6 +17,7 @@ from dataclasses import asdict, dataclass
 
 import torch
 
+from .. import checks
 from ..errors import InputError
 from .cameras import PerspectiveCamera, RectifiedCamera
 from .lights import PointLight
@@ -87,8 +88,7 @@ def hemisphere_directions(n: int, method: str = "fibonacci", max_zenith: float =
         >>> hemisphere_directions(100, "sobol", max_zenith=60).shape
         torch.Size([100, 3])
     """
-    if n < 1:
-        raise InputError(f"number of directions must be >= 1, got {n}")
+    checks.count(n, "number of directions", least=1)
     if not 0 < max_zenith <= 90:
         raise InputError(f"max_zenith must be in (0, 90] degrees, got {max_zenith}")
     if method == "fibonacci":

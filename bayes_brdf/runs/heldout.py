@@ -101,4 +101,3 @@ def heldout_report(post, obs, out: Path, fitted_sigma: float | None = None) -> d
             **correlations(std[vv], err[vv]),
             "correlation_posterior_mean": correlations(std[vv], (mean - y).abs()[vv]),
             "coverage": coverage(F[vv]), "views": per_view}
-
