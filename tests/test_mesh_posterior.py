@@ -5,14 +5,13 @@ import pytest
 import torch
 
 import bayes_brdf as bb
-from bayes_brdf.mitsuba_env import find_llvm19
 from bayes_brdf.render import SVBRDF, collocated_views
 from bayes_brdf.render.gbuffer import GBUFFERS
 from bayes_brdf.render.mesh import Mesh
 from bayes_brdf.render.shade import render
 from bayes_brdf.uncertainty import image_std
 
-pytestmark = pytest.mark.skipif(find_llvm19() is None, reason="Mitsuba's llvm_ad_rgb needs libLLVM 19")
+pytestmark = pytest.mark.needs_llvm
 
 R = 16
 

@@ -4,10 +4,8 @@ import sys
 
 import pytest
 
-from bayes_brdf.mitsuba_env import find_llvm19
 
-
-@pytest.mark.skipif(find_llvm19() is None, reason="libLLVM 19 not installed (scripts/setup.sh installs it)")
+@pytest.mark.needs_llvm
 def test_llvm_variant_renders_in_a_subprocess():
     # a subprocess, because a wrong LLVM aborts the whole process
     code = (

@@ -116,8 +116,7 @@ def test_every_sampler_runs_per_texel_and_homogeneous_from_presets():
             assert torch.isfinite(post.energies).all(), (model, name)
 
 
-@pytest.mark.cuda
-@pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA device")
+@pytest.mark.needs_cuda
 def test_device_follows_the_observations():
     post = bb.infer(bb.models.homogeneous(), OBS.to("cuda"), "spos", steps=20, progress=False)
     assert post.particles["albedo"].device.type == "cuda"

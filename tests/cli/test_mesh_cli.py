@@ -5,11 +5,10 @@ import json
 import pytest
 
 from bayes_brdf.cli.main import main
-from bayes_brdf.mitsuba_env import find_llvm19
 from bayes_brdf.posterior import Posterior
 from bayes_brdf.render.mesh import Mesh
 
-pytestmark = pytest.mark.skipif(find_llvm19() is None, reason="Mitsuba's llvm_ad_rgb needs libLLVM 19")
+pytestmark = pytest.mark.needs_llvm
 
 
 @pytest.fixture(scope="module")

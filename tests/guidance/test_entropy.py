@@ -15,11 +15,6 @@ from bayes_brdf.guidance.entropy import kde_entropy, kde_entropy_torch, noise_en
 H_STD_NORMAL = 0.5 * math.log(2 * math.pi * math.e)  # 1.4189...
 
 
-def _native_or_skip(dtype):
-    if E._lib(dtype) is None:
-        pytest.skip("native entropy kernel unavailable (no C compiler)")
-
-
 def _columns(n, dtype, seed=0):
     """[n, cols] test matrix: random columns plus the awkward ones (ties, constant, IQR = 0, duplicates)."""
     g = torch.Generator().manual_seed(seed)
@@ -39,8 +34,8 @@ def _columns(n, dtype, seed=0):
 @pytest.mark.parametrize("dtype,tol", [(torch.float64, 1e-8), (torch.float32, 1e-3)])
 @pytest.mark.parametrize("estimator", ["mc", "quadrature"])
 @pytest.mark.parametrize("noise_var", [0.0, 1e-3])
+@pytest.mark.needs_native(kernel="entropy")
 def test_native_kernel_equals_torch(dtype, tol, estimator, noise_var):
-    _native_or_skip(dtype)
     for n in (2, 3, 5, 20, 128):
         x = _columns(n, dtype, seed=n)
         g = torch.Generator().manual_seed(100 + n)
@@ -59,8 +54,8 @@ def test_native_kernel_equals_torch(dtype, tol, estimator, noise_var):
         torch.testing.assert_close(sd.double(), torch.tensor(x.double().numpy().std(0, ddof=1)), atol=tol, rtol=tol)
 
 
+@pytest.mark.needs_native(kernel="entropy")
 def test_more_particles_than_native_limit_falls_back_to_torch(monkeypatch):
-    _native_or_skip(torch.float64)
     nmax = E._lib(torch.float64)[1]
     calls = []
     real = E.kde_entropy_torch

@@ -19,7 +19,6 @@ import torch
 from bayes_brdf.cli.main import main
 from bayes_brdf.io import describe, load_capture, load_transforms, save_transforms, write_exr
 from bayes_brdf.io.images import linear_to_srgb, resample, srgb_to_linear
-from bayes_brdf.mitsuba_env import find_llvm19
 from bayes_brdf.observations import Observations
 from bayes_brdf.render.cameras import PerspectiveCamera
 from bayes_brdf.render.lights import PointLight
@@ -29,7 +28,6 @@ from bayes_brdf.render.views import View, collocated_views, light_stage_views
 
 from .helpers import raises_one_line
 
-needs_mitsuba = pytest.mark.skipif(find_llvm19() is None, reason="rendering a mesh needs libLLVM 19 for Mitsuba")
 H, W = 12, 16            # non-square on purpose
 
 
@@ -242,7 +240,7 @@ def test_units_and_up_axis_convert_to_cm_z_up(cap, units, up):
     assert got.meta["file_units"] == units and got.meta["up"] == up and got.meta["units"] == "cm"
 
 
-@needs_mitsuba
+@pytest.mark.needs_llvm
 def test_a_capture_in_metres_renders_the_same_radiance(tmp_path):
     """Positions x 100 and power x 1e4: the rendered pixels of the metre file equal those of the cm file."""
     from bayes_brdf.render.shade import render
@@ -386,7 +384,7 @@ def test_cli_bad_transforms_is_one_line_exit_2(cap):
     assert p.returncode == 2 and len(lines) == 1 and "'units'" in lines[0] and "Traceback" not in p.stderr
 
 
-@needs_mitsuba
+@pytest.mark.needs_llvm
 def test_cli_render_on_a_mesh_writes_a_capture_inspect_reads(tmp_path, capsys):
     m = _mesh()
     mm = Mesh(m.vertices * 10, m.faces, m.uv, m.normals, name="ball")       # the same ball, in mm

@@ -123,8 +123,7 @@ def test_roughness_contrast_matches_material_structure():
     assert r.median() < 0.15
 
 
-@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs CUDA")
-@pytest.mark.cuda
+@pytest.mark.needs_cuda
 def test_device_argument_cuda():
     m = make_material("wood", 32, 0, device="cuda")
     assert all(t.device.type == "cuda" for _, t in m.items())

@@ -6,8 +6,7 @@ from bayes_brdf.render import SVBRDF, PlanarSample, collocated_views
 from bayes_brdf.render.gbuffer import GBuffer
 from bayes_brdf.render.shade import shade, shade_loss
 
-pytestmark = [pytest.mark.cuda,
-              pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")]
+pytestmark = pytest.mark.needs_cuda
 
 
 @pytest.mark.parametrize("backend", ["eager", "compiled"])

@@ -2,20 +2,17 @@
 import pytest
 import torch
 
-from bayes_brdf.render import SVBRDF, PlanarSample, PointLight, View, collocated_views, native
+from bayes_brdf.render import SVBRDF, PlanarSample, PointLight, View, collocated_views
 from bayes_brdf.render.gbuffer import GBuffer
 from bayes_brdf.render.shade import shade, shade_loss
 
 RES = 8
 
 
-@pytest.fixture(params=["native", "torch.compile"])
+@pytest.fixture(params=[pytest.param("native", marks=pytest.mark.needs_native), "torch.compile"])
 def impl(request, monkeypatch):
     """Run the 'compiled' backend through each implementation (native is CPU-only)."""
-    if request.param == "native":
-        if not native.available(torch.ones(1)):
-            pytest.skip("native kernels unavailable (no C compiler)")
-    else:
+    if request.param != "native":
         monkeypatch.setenv("BAYES_BRDF_NO_NATIVE", "1")
     return request.param
 

@@ -5,13 +5,12 @@ import pytest
 import torch
 
 from bayes_brdf.errors import InputError
-from bayes_brdf.mitsuba_env import find_llvm19
 from bayes_brdf.render import SVBRDF, PerspectiveCamera, PlanarSample, PointLight, RectifiedCamera, View
 from bayes_brdf.render.gbuffer import GBUFFERS, GBuffer
 from bayes_brdf.render.mesh import Mesh
 from bayes_brdf.render.shade import render
 
-pytestmark = pytest.mark.skipif(find_llvm19() is None, reason="Mitsuba's llvm_ad_rgb needs libLLVM 19 (scripts/setup.sh)")
+pytestmark = pytest.mark.needs_llvm
 
 
 def _cams():

@@ -14,7 +14,6 @@ import torch
 import torch.nn.functional as F
 
 from bayes_brdf.errors import InputError
-from bayes_brdf.mitsuba_env import find_llvm19
 from bayes_brdf.render import SVBRDF, PerspectiveCamera, PointLight, RectifiedCamera, View
 from bayes_brdf.render.gbuffer import GBuffer
 from bayes_brdf.render.mesh import Mesh
@@ -23,8 +22,7 @@ from bayes_brdf.render.mitsuba_reference import (Unshadowed, _bitmap_data, check
 from bayes_brdf.render.shade import render, shade
 
 pytest.importorskip("mitsuba")
-pytestmark = pytest.mark.skipif(find_llvm19() is None,
-                                reason="Mitsuba's llvm_ad_rgb needs libLLVM 19 (scripts/setup.sh)")
+pytestmark = pytest.mark.needs_llvm
 
 BAR_DB = 35.0            # the acceptance bar
 NO_SHADOW_BELOW_DB = 30.0  # ours without visibility must miss the reference by far

@@ -88,6 +88,7 @@ def test_texel_gradients_do_not_depend_on_the_thread_count():
 @pytest.mark.parametrize("kind", ["l1", "l2"])
 @pytest.mark.parametrize("lights", [1, 3])
 @pytest.mark.parametrize("ks_factor", [True, False])
+@pytest.mark.needs_native(kernel="texels")
 def test_texel_kernel_matches_eager_with_constant_and_shared_maps(kind, lights, ks_factor, monkeypatch):
     """The native texel kernel (particles are its SIMD lanes: 11 particles fill one block of lanes and part of
     another) with an albedo map per particle, a constant roughness per particle and a specular map shared by
@@ -95,8 +96,6 @@ def test_texel_kernel_matches_eager_with_constant_and_shared_maps(kind, lights, 
     per-view path (grid_sample, autograd)."""
     from bayes_brdf.render import PointLight, View, native
     from bayes_brdf.render.shade import shade
-    if not native.available(torch.ones(1), texels=True):
-        pytest.skip("native kernels unavailable (no C compiler)")
     extra = [PointLight((1.0, -2.0, 4.0), (20.0, 10.0, 5.0)), PointLight((-3.0, 1.0, 6.0), 30.0)]
     views = [View(v.camera, v.lights + tuple(extra[:lights - 1]))
              for v in collocated_views(3, 2.5, resolution=16, fov=70, method="sobol", power=20.0)]
