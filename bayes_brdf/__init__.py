@@ -9,12 +9,12 @@ import importlib
 
 __version__ = "0.1.0"
 
-_SUBMODULES = ("render", "uncertainty", "guidance", "io", "materials", "models", "samplers", "experiments",
+_SUBMODULES = ("render", "uncertainty", "plots", "guidance", "io", "materials", "models", "samplers", "experiments",
                "inference", "posterior", "observations", "errors", "presets", "identity", "potential", "report")
 _NAMES = {"infer": "inference", "Posterior": "posterior", "Observations": "observations", "InputError": "errors",
           "priors": "models.priors"}
-__all__ = ["render", "uncertainty", "guidance", "io", "materials", "models", "priors", "samplers", "infer", "Posterior",
-           "Observations", "InputError", "__version__"]
+__all__ = ["render", "uncertainty", "plots", "guidance", "io", "materials", "models", "priors", "samplers", "infer",
+           "Posterior", "Observations", "InputError", "__version__"]
 
 
 def __getattr__(name: str):

@@ -24,7 +24,7 @@ from pathlib import Path
 import torch
 
 from .errors import ConvergenceWarning
-from . import figures
+from . import plots
 from .experiments.common import SURFACE
 from .guidance import Evaluation, SyntheticCapture, guided_acquisition, low_discrepancy, recommend, score_views
 from .inference import infer
@@ -35,7 +35,7 @@ from .models.material import per_texel
 from .render.shade import render
 from .render.views import collocated_views
 from .report import Report
-from .uncertainty import correlations, coverage, image_std, predictive_cdf
+from .uncertainty import correlations, coverage, image_std, interval_coverage, predictive_cdf
 
 DEFAULTS = dict(material="wood", resolution=32, views=5, candidates=300, novel=4, k=3, rounds=2, steps=1500,
                 guided_steps=None, seeds=3, particles=20, noise=0.005, radius=10.0, seed=0, capture=None,
@@ -151,10 +151,10 @@ def _real_capture(rep, path, out: Path, cfg, progress, log) -> dict:
     sd = image_std(post, held.views, held.surface)
     sat = held.saturated if held.saturated is not None else torch.zeros(err.shape[:3], dtype=torch.bool)
     vmax = h["map_range"][1]
-    grid = figures.panel_grid(out / "real" / "heldout_views.png", [
-        [figures.rgb_panel(held.images[j], f"held-out photo {i}"), figures.rgb_panel(pred[j], "MAP render"),
-         figures.map_panel(err[j], "|MAP render - photo|", vmax=vmax, masks={"clipped (left out)": sat[j]}),
-         figures.map_panel(sd[j], "predicted std (Eq. 11)", vmax=vmax, masks={"clipped (left out)": sat[j]})]
+    grid = plots.panel_grid(out / "real" / "heldout_views.png", [
+        [plots.rgb_panel(held.images[j], f"held-out photo {i}"), plots.rgb_panel(pred[j], "MAP render"),
+         plots.map_panel(err[j], "|MAP render - photo|", vmax=vmax, masks={"clipped (left out)": sat[j]}),
+         plots.map_panel(sd[j], "predicted std (Eq. 11)", vmax=vmax, masks={"clipped (left out)": sat[j]})]
         for j, i in enumerate(held_idx)])
     rep.images([(grid, "per held-out photo: the photo, the MAP's render, its error and the predicted std on one "
                        "shared range; cyan: clipped pixels, left out of every number")], width=1060)
@@ -213,14 +213,14 @@ def run(out, *, progress: bool = False, log=print, **overrides) -> Path:
     err_r = (m.roughness - truth.roughness).abs()
     va = float(torch.quantile(torch.cat([std["albedo"].flatten(), err_a.flatten()]), 0.99))
     vr = float(torch.quantile(torch.cat([std["roughness"].flatten(), err_r.flatten()]), 0.99))
-    maps_png = figures.panel_grid(out / "fit" / "maps.png", [
-        [figures.rgb_panel(truth.albedo, "true albedo"), figures.rgb_panel(m.albedo, "MAP albedo"),
-         figures.map_panel(std["albedo"], "posterior std: albedo", vmax=va),
-         figures.map_panel(err_a, "|MAP - truth|: albedo", vmax=va)],
-        [figures.map_panel(truth.roughness, "true roughness", vmax=1.0),
-         figures.map_panel(m.roughness, "MAP roughness", vmax=1.0),
-         figures.map_panel(std["roughness"], "posterior std: roughness", vmax=vr),
-         figures.map_panel(err_r, "|MAP - truth|: roughness", vmax=vr)]])
+    maps_png = plots.panel_grid(out / "fit" / "maps.png", [
+        [plots.rgb_panel(truth.albedo, "true albedo"), plots.rgb_panel(m.albedo, "MAP albedo"),
+         plots.map_panel(std["albedo"], "posterior std: albedo", vmax=va),
+         plots.map_panel(err_a, "|MAP - truth|: albedo", vmax=va)],
+        [plots.map_panel(truth.roughness, "true roughness", vmax=1.0),
+         plots.map_panel(m.roughness, "MAP roughness", vmax=1.0),
+         plots.map_panel(std["roughness"], "posterior std: roughness", vmax=vr),
+         plots.map_panel(err_r, "|MAP - truth|: roughness", vmax=vr)]])
     log(f"demo: section 2: sampled the posterior ({post.num_particles} particles, {cfg['steps']} steps) in "
         f"{times['fit']:.0f} s; mean std: albedo {float(std['albedo'].mean()):.3f}, "
         f"roughness {float(std['roughness'].mean()):.3f}; convergence checks: {_verdict(post)}")
@@ -233,18 +233,18 @@ def run(out, *, progress: bool = False, log=print, **overrides) -> Path:
     corr = correlations(sd, err)
     corr_r = correlations(std["roughness"], err_r)
     vmax = float(torch.quantile(torch.cat([sd.flatten(), err.flatten()]), 0.99))
-    novel_png = figures.panel_grid(out / "novel" / "novel_views.png", [
-        [figures.rgb_panel(novel_truth[j], f"novel view {j}: truth"), figures.rgb_panel(pred[j], "MAP render"),
-         figures.map_panel(err[j], "|MAP render - truth|", vmax=vmax),
-         figures.map_panel(sd[j], "predicted std (Eq. 11)", vmax=vmax)] for j in range(len(novel))])
+    novel_png = plots.panel_grid(out / "novel" / "novel_views.png", [
+        [plots.rgb_panel(novel_truth[j], f"novel view {j}: truth"), plots.rgb_panel(pred[j], "MAP render"),
+         plots.map_panel(err[j], "|MAP render - truth|", vmax=vmax),
+         plots.map_panel(sd[j], "predicted std (Eq. 11)", vmax=vmax)] for j in range(len(novel))])
     cov_img = coverage(F, LEVELS)
-    cov_a = figures.interval_coverage(post.particles["albedo"], truth.albedo, LEVELS)
-    cov_r = figures.interval_coverage(post.particles["roughness"], truth.roughness, LEVELS)
-    rel_png = figures.reliability(out / "novel" / "reliability.png", {
+    cov_a = interval_coverage(post.particles["albedo"], truth.albedo, LEVELS)
+    cov_r = interval_coverage(post.particles["roughness"], truth.roughness, LEVELS)
+    rel_png = plots.reliability(out / "novel" / "reliability.png", {
         "novel-view photos (posterior predictive)": (LEVELS, [cov_img[f"{round(100 * q)}"] for q in LEVELS]),
         "true albedo texels (particle intervals)": (LEVELS, cov_a),
         "true roughness texels (particle intervals)": (LEVELS, cov_r)})
-    sve_png = figures.std_vs_error(out / "novel" / "std_vs_error.png", [
+    sve_png = plots.std_vs_error(out / "novel" / "std_vs_error.png", [
         (sd, err, "novel views: pixels"), (std["roughness"], err_r, "roughness: texels")])
     times["novel"] = time.perf_counter() - t
     log(f"demo: section 3: novel views: predicted std vs actual error Pearson {corr['pearson']:.2f}, "
@@ -256,7 +256,7 @@ def run(out, *, progress: bool = False, log=print, **overrides) -> Path:
     rec = recommend(post, cands, int(cfg["k"]), radius=float(cfg["radius"]), exclude=init_idx, scores=scores)
     times["recommend"] = time.perf_counter() - t
     cand_png = out / "recommend" / "candidates.png"
-    figures.plot_candidates(cand_png, cands, scores.mi.numpy(), rec.indices, f"{len(cands)} candidate flash views, MI")
+    plots.plot_candidates(cand_png, cands, scores.mi.numpy(), rec.indices, f"{len(cands)} candidate flash views, MI")
     log(f"demo: section 4: scored {len(cands)} candidate views in {scores.seconds:.1f} s; recommended "
         + ", ".join(f"{tuple(round(c, 1) for c in cands[i].camera.position)}" for i in rec.indices))
 
@@ -267,11 +267,12 @@ def run(out, *, progress: bool = False, log=print, **overrides) -> Path:
     if unconverged:
         log(f"demo: note: {unconverged} guided-round posteriors did not pass every convergence check")
     times["guided"] = time.perf_counter() - t
-    err_png = figures.bands(out / "guided" / "novel_error.png", _mean_sd(curves, "runs"), xlabel="number of views",
-                            ylabel="novel-view error of the MAP",
-                            title=f"guided vs baseline: mean ± sd over {cfg['seeds']} seeds")
-    std_png = figures.bands(out / "guided" / "mean_image_std.png", _mean_sd(curves, "std"), xlabel="number of views",
-                            ylabel="mean image-space std", title=f"mean ± sd over {cfg['seeds']} seeds")
+    err_png = plots.line_plot(out / "guided" / "novel_error.png", _mean_sd(curves, "runs"), spread="band",
+                              style="report", xlabel="number of views", ylabel="novel-view error of the MAP",
+                              title=f"guided vs baseline: mean ± sd over {cfg['seeds']} seeds")
+    std_png = plots.line_plot(out / "guided" / "mean_image_std.png", _mean_sd(curves, "std"), spread="band",
+                              style="report", xlabel="number of views", ylabel="mean image-space std",
+                              title=f"mean ± sd over {cfg['seeds']} seeds")
     conclusion = _conclusion(curves) if int(cfg["rounds"]) > 0 else "No guided rounds were run (--rounds 0)."
     log(f"demo: section 5: {cfg['rounds']} guided rounds of {cfg['k']} views and the baseline, {cfg['seeds']} seeds, in "
         f"{times['guided']:.0f} s. {conclusion}")

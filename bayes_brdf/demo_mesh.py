@@ -15,7 +15,7 @@ from pathlib import Path
 
 import torch
 
-from . import figures
+from . import plots
 from .errors import ConvergenceWarning, InputError
 from .guidance import SyntheticCapture, recommend, score_views
 from .inference import infer
@@ -69,13 +69,13 @@ def mesh_section(rep, out: Path, cfg: dict, progress: bool, log) -> dict:
     unseen = ~seen.reshape(T, T)
     va = float(std["albedo"].max())
     vr = float(std["roughness"].max())
-    photos = figures.panel_grid(out / "mesh" / "photos.png", [
-        [figures.rgb_panel(obs.images[i], f"photo {i}") for i in range(min(4, len(obs)))]], width=2.6)
-    texture = figures.panel_grid(out / "mesh" / "texture.png", [
-        [figures.rgb_panel(truth.albedo, "true albedo (texture space)"), figures.rgb_panel(m.albedo, "MAP albedo"),
-         figures.map_panel(std["albedo"], "posterior std: albedo", vmax=va, masks={"no photo sees it": unseen}),
-         figures.map_panel(std["roughness"], "posterior std: roughness", vmax=vr,
-                           masks={"no photo sees it": unseen})]])
+    photos = plots.panel_grid(out / "mesh" / "photos.png", [
+        [plots.rgb_panel(obs.images[i], f"photo {i}") for i in range(min(4, len(obs)))]], panel_size=(2.6, 2.5))
+    texture = plots.panel_grid(out / "mesh" / "texture.png", [
+        [plots.rgb_panel(truth.albedo, "true albedo (texture space)"), plots.rgb_panel(m.albedo, "MAP albedo"),
+         plots.map_panel(std["albedo"], "posterior std: albedo", vmax=va, masks={"no photo sees it": unseen}),
+         plots.map_panel(std["roughness"], "posterior std: roughness", vmax=vr,
+                         masks={"no photo sees it": unseen})]])
     novel = collocated_views(2, dist, method="random", seed=10_000 + seed, max_zenith=80, **light)
     nt = render(truth, novel, mesh)[0]
     pred = render(m, novel, mesh)[0]
@@ -84,17 +84,17 @@ def mesh_section(rep, out: Path, cfg: dict, progress: bool, log) -> dict:
     on = GBUFFERS.get(tuple(novel), mesh).mask
     corr = correlations(sd[on], err[on])
     vmax = float(torch.quantile(torch.cat([sd[on].flatten(), err[on].flatten()]), 0.99))
-    novel_png = figures.panel_grid(out / "mesh" / "novel_views.png", [
-        [figures.rgb_panel(nt[j], f"novel view {j}: truth"), figures.rgb_panel(pred[j], "MAP render"),
-         figures.map_panel(err[j], "|MAP render - truth|", vmax=vmax, masks={"off the object": ~on[j]}),
-         figures.map_panel(sd[j], "predicted std (Eq. 11)", vmax=vmax, masks={"off the object": ~on[j]})]
+    novel_png = plots.panel_grid(out / "mesh" / "novel_views.png", [
+        [plots.rgb_panel(nt[j], f"novel view {j}: truth"), plots.rgb_panel(pred[j], "MAP render"),
+         plots.map_panel(err[j], "|MAP render - truth|", vmax=vmax, masks={"off the object": ~on[j]}),
+         plots.map_panel(sd[j], "predicted std (Eq. 11)", vmax=vmax, masks={"off the object": ~on[j]})]
         for j in range(len(novel))])
     cands = collocated_views(int(cfg["mesh_candidates"]), dist, method="sobol", seed=seed, max_zenith=90, **light)
     scores = score_views(post, cands, mesh, seed=seed)
     rec = recommend(post, cands, int(cfg["k"]), radius=float(cfg["radius"]), scores=scores, surface=mesh)
     cand_png = out / "mesh" / "candidates.png"
-    figures.plot_candidates(cand_png, cands, scores.mi.numpy(), rec.indices,
-                            f"{len(cands)} candidate cameras around the {mesh.name}, MI", centre=mesh.center)
+    plots.plot_candidates(cand_png, cands, scores.mi.numpy(), rec.indices,
+                          f"{len(cands)} candidate cameras around the {mesh.name}, MI", centre=mesh.center)
     secs = time.perf_counter() - t0
     frac = float(seen.float().mean())
     log(f"demo: section 7: mesh '{mesh.name}' ({mesh.num_faces} faces): {len(obs)} photos, {T}x{T} texels of which "

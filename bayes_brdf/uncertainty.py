@@ -1,4 +1,4 @@
-"""Uncertainty: parameter-space std (Eq. 9), image-space std (Eq. 11), posterior-predictive checks, and figures.
+"""Uncertainty: parameter-space std (Eq. 9), image-space std (Eq. 11) and posterior-predictive checks.
 
 * :func:`parameter_std` -- per-site std maps over the particles (Eq. 9).
 * :func:`image_std` -- per-pixel std over the particles' renders of any views
@@ -6,9 +6,11 @@
 * :func:`predictive_cdf` -- where an observed pixel falls in the
   posterior-predictive distribution (particles' renders plus the likelihood's
   noise): the PIT value, from which interval coverage follows.
-* :func:`write_map` -- a value map as EXR (the numbers) and a colour-mapped PNG
-  with a colour bar (one fixed colormap, :data:`CMAP`, for every uncertainty
-  and error figure, like the paper's).
+* :func:`coverage`, :func:`interval_coverage`, :func:`correlations` -- interval
+  coverage of PIT values and of particles, and std against error.
+
+The figures of these numbers (value maps as EXR and colour-mapped PNG, the
+reliability diagram, std against error) are drawn by :mod:`bayes_brdf.plots`.
 
 Example:
     >>> import torch
@@ -20,7 +22,6 @@ Example:
 from __future__ import annotations
 
 import math
-from pathlib import Path
 
 import numpy as np
 import torch
@@ -31,9 +32,6 @@ from .render.gbuffer import GBUFFERS
 from .render.maps import SVBRDF
 from .render.shade import shade_chunks
 from .render.surface import PlanarSample
-
-#: the one colormap of every uncertainty / error figure
-CMAP = "inferno"
 
 
 def parameter_std(post) -> dict[str, Tensor]:
@@ -155,115 +153,16 @@ def correlations(predicted: Tensor, error: Tensor) -> dict[str, float]:
     return {"pearson": float(pearsonr(a, b)[0]), "spearman": float(spearmanr(a, b)[0])}
 
 
-# ------------------------------------------------------------------ figures
-def colorize(x, vmin: float = 0.0, vmax: float | None = None, cmap: str = CMAP) -> np.ndarray:
-    """A ``[H, W]`` value map as ``[H, W, 3]`` uint8 through ``cmap`` (``vmax``: the 99th percentile by default)."""
-    import matplotlib
+def interval_coverage(particles: Tensor, truth: Tensor, levels) -> list[float]:
+    """Fraction of ``truth`` values inside the particles' central intervals (empirical quantiles over dim 0).
 
-    a = np.asarray(torch.as_tensor(x).detach().cpu().double())
-    if vmax is None:
-        fin = a[np.isfinite(a)]
-        vmax = float(np.percentile(fin, 99)) if fin.size else 1.0
-    vmax = vmax if vmax > vmin else vmin + 1e-12
-    t = np.clip((np.nan_to_num(a, nan=vmin) - vmin) / (vmax - vmin), 0, 1)
-    return (matplotlib.colormaps[cmap](t)[..., :3] * 255 + 0.5).astype(np.uint8)
-
-
-def as_hwc(img) -> Tensor:
-    """``img`` as a CPU float ``[H, W]`` or ``[H, W, C]`` (a channel-first ``[C, H, W]`` map with C <= 3 is moved)."""
-    t = torch.as_tensor(img).detach().float().cpu()
-    if t.dim() == 3 and t.shape[0] in (1, 2, 3) and t.shape[-1] not in (1, 2, 3):
-        t = t.movedim(0, -1)  # channel-first map
-    return t
-
-
-def scalar_map(img) -> Tensor:
-    """``img`` (``[H, W]``, ``[H, W, C]`` or channel-first ``[C, H, W]``) as one ``[H, W]`` map (channels averaged)."""
-    t = as_hwc(img)
-    return t.mean(-1) if t.dim() == 3 else t
-
-
-#: colours of pixels a map leaves out (never a colour of :data:`CMAP`): see ``masks`` of :func:`show_map`
-MASK_COLOURS = ("#22c3e6", "#8a8a8a", "#3ddc84")
-
-
-def show_map(fig, ax, value, vmin: float, vmax: float, title: str = "", unit: str = "", fontsize: int = 9,
-             masks: dict | None = None):
-    """Draw a value map on ``ax`` with the one colormap and a colour bar (shared by every figure).
-
-    ``masks`` ``{label: [H, W] bool}``: pixels left out of the values (clipped in the photo, outside
-    the sample, ...), drawn in flat colours that the colormap never uses (:data:`MASK_COLOURS`) and
-    named in a legend, so that a left-out pixel is never read as a value of 0.
+    Example:
+        >>> interval_coverage(torch.arange(11.0)[:, None], torch.tensor([5.0, 0.5]), (0.5, 1.0))
+        [0.5, 1.0]
     """
-    import matplotlib.colors as mcolors
-    from matplotlib.patches import Patch
-
-    im = ax.imshow(value, cmap=CMAP, vmin=vmin, vmax=vmax if vmax > vmin else vmin + 1e-12, interpolation="nearest")
-    handles = []
-    for (label, m), colour in zip((masks or {}).items(), MASK_COLOURS):
-        m = np.asarray(torch.as_tensor(m).detach().cpu().bool())
-        if not m.any():
-            continue
-        over = np.zeros((*m.shape, 4))
-        over[m] = mcolors.to_rgba(colour)
-        ax.imshow(over, interpolation="nearest")
-        handles.append(Patch(facecolor=colour, label=f"{label} ({int(m.sum())} px)"))
-    ax.set_axis_off()
-    if title:
-        ax.set_title(title, fontsize=fontsize)
-    cb = fig.colorbar(im, ax=ax, fraction=0.046, pad=0.04)
-    cb.ax.tick_params(labelsize=fontsize - 2)
-    if unit:
-        cb.set_label(unit, fontsize=fontsize - 1)
-    if handles:
-        ax.legend(handles=handles, loc="upper center", bbox_to_anchor=(0.5, -0.01), fontsize=fontsize - 2,
-                  frameon=False, ncol=1, handlelength=1.0)
-    return im
-
-
-def write_map(path, value, *, title: str = "", vmin: float = 0.0, vmax: float | None = None,
-              unit: str = "", exr: bool = True, masks: dict | None = None) -> Path:
-    """Write ``value`` (``[H, W]``, ``[H, W, C]`` or channel-first ``[C, H, W]``) as ``path.exr`` and a
-    colour-mapped ``path.png`` with a colour bar (channels are averaged for the PNG). The EXR is RGB: one
-    channel is repeated, two are stored as R, G with B = 0. ``masks`` ``{label: [H, W] bool}`` are pixels
-    without a value: NaN in the EXR, a flat colour named in the PNG's legend (:func:`show_map`).
-    Both files are written atomically. Returns the PNG path."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from .io import write_exr
-
-    path = Path(path).with_suffix("")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    t = as_hwc(value)
-    if t.dim() != 2 and not (t.dim() == 3 and t.shape[-1] <= 3):
-        raise InputError(f"write_map: a map is [H, W], [H, W, C] or [C, H, W] with C <= 3, got {tuple(t.shape)}",
-                         where=path, fix="write one channel group per call")
-    if masks:
-        left_out = torch.zeros(t.shape[:2], dtype=torch.bool)
-        for m in masks.values():
-            left_out |= torch.as_tensor(m).detach().cpu().bool()
-        t = t.masked_fill(left_out[..., None] if t.dim() == 3 else left_out, float("nan"))
-    if exr:
-        e = t[..., None] if t.dim() == 2 else t
-        if e.shape[-1] == 1:   # grey: the value in R, G and B (every viewer shows it)
-            e = e.expand(*e.shape[:2], 3)
-        elif e.shape[-1] == 2:   # e.g. normal slopes: R, G with B = 0
-            e = torch.cat([e, torch.zeros_like(e[..., :1])], -1)
-        write_exr(path.with_suffix(".exr"), e)
-    s = scalar_map(t).numpy()
-    if vmax is None:
-        fin = s[np.isfinite(s)]
-        vmax = float(np.percentile(fin, 99)) if fin.size else 1.0
-    vmax = vmax if vmax > vmin else vmin + 1e-12
-    legend_rows = sum(bool(torch.as_tensor(m).any()) for m in (masks or {}).values())
-    fig, ax = plt.subplots(figsize=(3.6, 3.0 + 0.22 * legend_rows), dpi=100)
-    show_map(fig, ax, np.ma.masked_invalid(s), vmin, vmax, title, unit, masks=masks)
-    fig.tight_layout()
-    png = path.with_suffix(".png")
-    from .io.outputs import atomic_path
-    with atomic_path(png) as tmp:
-        fig.savefig(tmp)
-    plt.close(fig)
-    return png
+    out = []
+    for q in levels:
+        lo = torch.quantile(particles.float(), 0.5 - q / 2, dim=0)
+        hi = torch.quantile(particles.float(), 0.5 + q / 2, dim=0)
+        out.append(float(((truth >= lo) & (truth <= hi)).float().mean()))
+    return out

@@ -1,23 +1,20 @@
 """Uncertainty (Eqs. 9, 11): parameter and image-space std vs per-particle references, the posterior-predictive
-CDF vs scipy and its calibration, coverage / correlations, and the map figures."""
+CDF vs scipy and its calibration, coverage / correlations (their figures: tests/test_plots.py)."""
 import math
 
 import numpy as np
 import pytest
 import torch
-from PIL import Image
 from scipy import stats
 
 import bayes_brdf as bb
 from bayes_brdf.errors import InputError
-from bayes_brdf.io import read_image
 from bayes_brdf.posterior import Posterior
 from bayes_brdf.render import SVBRDF, PlanarSample
 from bayes_brdf.render.gbuffer import GBuffer
 from bayes_brdf.render.shade import render
 from bayes_brdf.render.views import collocated_views
-from bayes_brdf.uncertainty import (CMAP, colorize, correlations, coverage, image_std, parameter_std,
-                                    predictive_cdf, write_map)
+from bayes_brdf.uncertainty import correlations, coverage, image_std, parameter_std, predictive_cdf
 
 S = PlanarSample(2.0)
 R = 8
@@ -146,49 +143,3 @@ def test_correlations_against_numpy():
     assert correlations(torch.tensor([1.0, 2, 3]), torch.tensor([3.0, 2, 1]))["pearson"] == pytest.approx(-1.0)
     for bad in (correlations(torch.ones(5), torch.rand(5)), correlations(torch.rand(2), torch.rand(2))):
         assert math.isnan(bad["pearson"]) and math.isnan(bad["spearman"])
-
-
-def test_colorize_uses_the_colormap_and_clips():
-    import matplotlib
-    cm = matplotlib.colormaps[CMAP]
-    x = torch.tensor([[0.0, 0.5, 1.0], [2.0, -1.0, float("nan")]])
-    c = colorize(x, vmin=0.0, vmax=1.0)
-    assert c.shape == (2, 3, 3) and c.dtype == np.uint8
-    ref = (np.array([cm(0.0), cm(0.5), cm(1.0), cm(1.0), cm(0.0), cm(0.0)])[:, :3] * 255 + 0.5).astype(np.uint8)
-    np.testing.assert_array_equal(c.reshape(-1, 3), ref)
-    # default vmax: the 99th percentile
-    v = np.linspace(0, 1, 101)
-    np.testing.assert_array_equal(colorize(v[None]), colorize(v[None], vmax=float(np.percentile(v, 99))))
-
-
-@pytest.mark.parametrize("shape", [(12, 10), (12, 10, 3), (3, 12, 10), (12, 10, 2), (2, 12, 10)])
-def test_write_map_writes_exact_exr_and_a_colour_png(tmp_path, shape):
-    g = torch.Generator().manual_seed(1)
-    v = torch.rand(*shape, generator=g) * 0.3
-    png = write_map(tmp_path / "sub" / "std_map", v, title="std", unit="radiance")
-    assert png == tmp_path / "sub" / "std_map.png" and png.is_file()
-    back = read_image(tmp_path / "sub" / "std_map.exr")
-    hwc = v.movedim(0, -1) if shape[0] in (2, 3) else v
-    hwc = hwc[..., None] if hwc.dim() == 2 else hwc
-    if hwc.shape[-1] == 2:                                               # two channels: R, G and B = 0
-        hwc = torch.cat([hwc, torch.zeros(12, 10, 1)], -1)
-    assert back.shape == (12, 10, 3)
-    np.testing.assert_array_equal(back, np.broadcast_to(hwc.numpy(), (12, 10, 3)))
-    im = Image.open(png)
-    assert im.mode in ("RGB", "RGBA")
-    a = np.asarray(im.convert("RGB"))
-    assert a.shape[0] > 50 and a.shape[1] > 50
-    colours = np.unique(a.reshape(-1, 3), axis=0)
-    assert len(colours) > 20                                             # the map and its colour bar
-    # the inferno colours of the map show up in the figure (a dark and a bright one)
-    cm = (np.array([colorize(np.array([[0.0, 1.0]]), 0.0, 1.0)])[0, 0]).astype(int)
-    dist = lambda col: np.abs(a.astype(int) - col).sum(-1).min()        # noqa: E731
-    assert dist(cm[0]) <= 6 and dist(cm[1]) <= 6
-    # png only
-    write_map(tmp_path / "only_png", v, exr=False)
-    assert (tmp_path / "only_png.png").is_file() and not (tmp_path / "only_png.exr").exists()
-
-
-def test_write_map_refuses_a_stack_of_maps_in_one_line(tmp_path):
-    with pytest.raises(InputError, match=r"write_map: a map is .* got \(12, 10, 5\)"):
-        write_map(tmp_path / "stack", torch.zeros(12, 10, 5))

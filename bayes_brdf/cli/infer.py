@@ -124,7 +124,7 @@ def convergence_note(post) -> str:
 def write_posterior(post, out: Path) -> dict:
     """``posterior.safetensors``, ``mean/`` and ``map/`` maps, ``std/<site>.exr`` (+ PNG with a colour bar)."""
     from ..io import save_svbrdf
-    from ..uncertainty import write_map
+    from ..plots import write_map
 
     post.save(out / "posterior.safetensors")
     save_svbrdf(post.maps("mean").to("cpu"), out / "mean")

@@ -80,10 +80,10 @@ def _candidates(spec: str, full, fitted):
 
 def run(a) -> int:
     from ..errors import InputError
-    from ..figures import plot_candidates
     from ..guidance import recommend, score_views
     from ..guidance.scores import parse_noise_var
     from ..io.outputs import write_json
+    from ..plots import plot_candidates
     from ..posterior import Posterior
 
     nv = parse_noise_var(a.noise_var)           # checked before any fitting

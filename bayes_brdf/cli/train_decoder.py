@@ -40,9 +40,10 @@ def run(a) -> int:
                       **{k: v for k, v in (("steps", a.steps), ("batch", a.batch)) if v is not None})
     s = train_decoder(cfg, out)
     if a.figures:
-        from ..training.figures import curve_figure, sample_grid
+        from ..plots import decoder_curve, decoder_samples
+        from ..training.train import decoded_samples, read_curve
         fig = Path(a.figures)
-        curve_figure(out, fig / f"{out.stem}_curve.png")
-        sample_grid(out, fig / f"{out.stem}_samples.png")
+        decoder_curve(read_curve(out), fig / f"{out.stem}_curve.png")
+        decoder_samples(decoded_samples(out), fig / f"{out.stem}_samples.png")
     print(f"trained {cfg.preset} for {cfg.steps} steps in {s['seconds']:.0f} s (final L1 {s['final_l1']:.4f}) -> {out}")
     return 0

@@ -1,14 +1,12 @@
-"""Shared pieces of the experiments: synthetic problems, fitting, JSON and figures."""
+"""Shared pieces of the experiments: synthetic problems, fitting and JSON (figures: :mod:`bayes_brdf.plots`)."""
 from __future__ import annotations
 
 import functools
 import json
 import logging
-import math
 import sys
 from pathlib import Path
 
-import numpy as np
 import torch
 
 from ..inference import infer
@@ -18,7 +16,6 @@ from ..errors import InputError
 from ..render.shade import render
 from ..render.surface import PlanarSample
 from ..render.views import collocated_views
-from ..uncertainty import show_map
 
 SURFACE = PlanarSample(2.0)
 #: the noise scale sigma_err of Eq. 2 the paper's figures use, pinned for the (noiseless) figure problems:
@@ -148,18 +145,6 @@ def prepare(module_name: str, preset: str, overrides: dict, out):
     return cfg, out
 
 
-def save_figure(fig, path, *, dpi: int = 110, tight: bool = False) -> Path:
-    """Write ``fig`` to ``path`` (PNG; folders created) and close it."""
-    import matplotlib.pyplot as plt
-
-    from ..io.outputs import atomic_path
-
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=dpi, **({"bbox_inches": "tight"} if tight else {}))
-    plt.close(fig)
-    return Path(path)
-
-
 def write_json(out, name: str, data: dict) -> Path:
     """``out/name.json`` (atomically, numbers that are not JSON floats as floats)."""
     from ..io.outputs import write_text
@@ -167,59 +152,8 @@ def write_json(out, name: str, data: dict) -> Path:
     return write_text(Path(out) / f"{name}.json", json.dumps(data, indent=2, default=float))
 
 
-def figure_grid(path, panels, *, ncols: int | None = None, title: str = "", share: bool = True, vmax=None):
-    """A row/grid of value maps ``[(label, [H, W] array)]`` with the one colormap and a colour bar each
-    (``share``: one common range; ``vmax`` a list: one upper end per panel). Writes ``path`` (PNG)."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    arrs = [(lab, np.asarray(torch.as_tensor(a).detach().float().cpu())) for lab, a in panels]
-    ncols = ncols or len(arrs)
-    nrows = math.ceil(len(arrs) / ncols)
-    if share and vmax is None:
-        vmax = max(float(np.percentile(a[np.isfinite(a)], 99)) for _, a in arrs)
-    fig, axes = plt.subplots(nrows, ncols, figsize=(2.6 * ncols, 2.4 * nrows + (0.3 if title else 0)),
-                             squeeze=False)
-    for ax in axes.flat:
-        ax.set_axis_off()
-    for i, (ax, (lab, a)) in enumerate(zip(axes.flat, arrs)):
-        vm = (vmax[i] if isinstance(vmax, (list, tuple)) else vmax if share
-              else float(np.percentile(a[np.isfinite(a)], 99)))
-        show_map(fig, ax, a, 0.0, vm, lab, fontsize=8)
-    if title:
-        fig.suptitle(title, fontsize=9)
-    fig.tight_layout()
-    return save_figure(fig, path)
-
-
-def line_plot(path, series: dict, *, xlabel: str, ylabel: str, title: str = "", logx: bool = False,
-              errors: dict | None = None):
-    """``series = {label: (xs, ys)}`` on one plot (optional ``errors = {label: yerr}``). Writes ``path``."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(4.2, 3.2))
-    for lab, (xs, ys) in series.items():
-        if errors and lab in errors:
-            ax.errorbar(xs, ys, yerr=errors[lab], marker="o", ms=3, capsize=2, label=lab)
-        else:
-            ax.plot(xs, ys, marker="o", ms=3, label=lab)
-    if logx:
-        ax.set_xscale("log", base=2)
-    ax.set_xlabel(xlabel)
-    ax.set_ylabel(ylabel)
-    if title:
-        ax.set_title(title, fontsize=9)
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=7)
-    fig.tight_layout()
-    return save_figure(fig, path)
-
-
 def views_at(obs: Observations):
     return list(obs.views)
 
 
-__all__ = ["SURFACE", "synthetic", "fit", "write_json", "figure_grid", "line_plot", "render"]
+__all__ = ["SURFACE", "synthetic", "fit", "write_json", "render"]

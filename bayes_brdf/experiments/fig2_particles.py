@@ -20,14 +20,14 @@ from __future__ import annotations
 
 import time
 
-import numpy as np
 import torch
 
-from .common import FIGURE_SAMPLER, PAPER_SIGMA, figure_grid, line_plot, prepare, say, synthetic, write_json
+from .common import FIGURE_SAMPLER, PAPER_SIGMA, prepare, say, synthetic, write_json
 from ..errors import InputError
 from ..inference import infer
 from ..models.data import ModelData
 from ..models.material import per_texel
+from ..plots import line_plot, map_panel, panel_grid
 from ..potential import Potential
 
 DESCRIPTION = "Fig. 2: particle-count ablation: parameter-space std (Eq. 9) for n = 2..32 SPOS particles"
@@ -94,11 +94,11 @@ def run(out, preset: str = "small", seed: int = 0, progress: bool = False, **ove
               title=f"Fig. 2: Eq. 9 std vs particle count\n(at n = {big}: roughness "
                     f"{rows[big]['mean_std_roughness']:.3f}, albedo {rows[big]['mean_std_albedo']:.4f})")
     shown = [n for n in _ints(cfg["maps"]) if n in std_r] or [ns[0], ns[-1]]
-    figure_grid(out / "fig2_roughness_std_maps.png",
-                [("true roughness", truth.roughness[0])] + [(f"roughness std, n = {n}", std_r[n]) for n in shown],
-                vmax=[1.0] + [max(float(np.percentile(std_r[n].numpy(), 99)) for n in shown)] * len(shown),
-                title=f"{cfg['material']} {R}x{R}, {cfg['views']} views, {cfg['steps']} steps "
-                      f"(std maps share one range)")
+    panel_grid(out / "fig2_roughness_std_maps.png",
+               [map_panel(truth.roughness[0], "true roughness", vmax=1.0)]
+               + [map_panel(std_r[n], f"roughness std, n = {n}") for n in shown], share=True, style="compact",
+               title=f"{cfg['material']} {R}x{R}, {cfg['views']} views, {cfg['steps']} steps "
+                     f"(std maps share one range)")
 
     summary = {"mean_std_roughness": {str(n): round(rows[n]["mean_std_roughness"], 5) for n in ns},
                "mean_std_albedo": {str(n): round(rows[n]["mean_std_albedo"], 5) for n in ns},

@@ -34,11 +34,12 @@ import time
 import numpy as np
 import torch
 
-from .common import FIGURE_SAMPLER, PAPER_SIGMA, SURFACE, figure_grid, line_plot, prepare, say, synthetic, write_json
+from .common import FIGURE_SAMPLER, PAPER_SIGMA, SURFACE, prepare, say, synthetic, write_json
 from .fig2_particles import _ints, start
 from ..errors import InputError
 from ..inference import infer
 from ..models.material import per_texel
+from ..plots import line_plot, map_panel, panel_grid
 from ..render.views import hemisphere_directions, light_stage_views
 
 DESCRIPTION = "Fig. 3: parameter-space std (Eq. 9) and MAP errors of roughness vs number of observations"
@@ -139,16 +140,15 @@ def run(out, preset: str = "small", seed: int = 0, progress: bool = False, **ove
         # the grid: rows estimate 1, error 1, estimate 2, error 2, std; columns the counts
         e_max = max(float(np.percentile(e.numpy(), 99)) for k in counts for e in maps[k][1])
         s_max = max(float(np.percentile(maps[k][2].numpy(), 99)) for k in counts)
-        panels, vmax = [], []
+        panels = []
         for name, pick, vm in (("estimate 1", lambda m: m[0][0], 1.0), ("L1 error 1", lambda m: m[1][0], e_max),
                                ("estimate 2", lambda m: m[0][1], 1.0), ("L1 error 2", lambda m: m[1][1], e_max),
                                ("std (Eq. 9)", lambda m: m[2], s_max)):
             for k in counts:
-                panels.append((f"{name}, {k} obs.", pick(maps[k])))
-                vmax.append(vm)
-        figure_grid(out / f"fig3_{config}.png", panels, ncols=len(counts), vmax=vmax,
-                    title=f"Fig. 3 ({config}): roughness, {cfg['material']} {R}x{R}, {cfg['particles']} particles, "
-                          f"{cfg['steps']} steps")
+                panels.append(map_panel(pick(maps[k]), f"{name}, {k} obs.", vmax=vm))
+        panel_grid(out / f"fig3_{config}.png", panels, ncols=len(counts), style="compact",
+                   title=f"Fig. 3 ({config}): roughness, {cfg['material']} {R}x{R}, {cfg['particles']} particles, "
+                         f"{cfg['steps']} steps")
         results[config] = {str(k): rows[k] for k in counts}
         ms = [rows[k]["mean_std"] for k in counts]
         summary[config] = {

@@ -41,18 +41,18 @@ import time
 import numpy as np
 import torch
 
-from .common import (PAPER_SIGMA, figure_grid, is_mesh, mesh_rig, prepare, sampler_of,
-                     save_figure, scene_surface, synthetic, write_json)
+from .common import PAPER_SIGMA, is_mesh, mesh_rig, prepare, sampler_of, scene_surface, synthetic, write_json
 from ..inference import infer
 from ..models.data import ModelData
 from ..models.material import per_texel
+from ..plots import fig4_overview, map_panel, panel_grid
 from ..potential import Potential
 from ..render.cameras import PerspectiveCamera, RectifiedCamera
 from ..render.gbuffer import GBuffer
 from ..render.lights import PointLight
 from ..render.shade import render
 from ..render.views import View, collocated_views
-from ..uncertainty import CMAP, correlations, image_std
+from ..uncertainty import correlations, image_std
 
 DESCRIPTION = "Fig. 4: image-space std (Eq. 11) vs novel-view errors of four point estimates (Adam x2, SGD, ours)"
 
@@ -206,41 +206,6 @@ def _maps_of(model, values: list[dict]):
     return model.maps(stacked)
 
 
-def _tonemap(img: np.ndarray, exposure: float) -> np.ndarray:
-    return np.clip(img / exposure, 0, 1) ** (1 / 2.2)
-
-
-def _overview(path, view_names, truth_r, est_r, errors, stds, vmaxes):
-    """Rows per novel view: top, the truth and the four estimates' renders; below, the std and their errors
-    (one colour range per view, shared by its std and error maps)."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    nv = len(view_names)
-    fig, axes = plt.subplots(2 * nv, 5, figsize=(11.2, 4.3 * nv), squeeze=False)
-    for v, name in enumerate(view_names):
-        vmax = vmaxes[v]
-        exposure = float(np.percentile(truth_r[v], 99.5)) or 1.0
-        top, bot = axes[2 * v], axes[2 * v + 1]
-        top[0].imshow(_tonemap(truth_r[v], exposure), interpolation="nearest")
-        top[0].set_title(f"{name}: truth", fontsize=8)
-        im = bot[0].imshow(stds[v], cmap=CMAP, vmin=0, vmax=vmax, interpolation="nearest")
-        bot[0].set_title(f"{name}: std (Eq. 11)", fontsize=8)
-        for j, e in enumerate(ESTIMATES):
-            top[j + 1].imshow(_tonemap(est_r[e][v], exposure), interpolation="nearest")
-            top[j + 1].set_title(LABELS[e], fontsize=8)
-            bot[j + 1].imshow(errors[e][v], cmap=CMAP, vmin=0, vmax=vmax, interpolation="nearest")
-            bot[j + 1].set_title(f"|error| {e[:2]}", fontsize=8)
-        for ax in (*top, *bot):
-            ax.set_axis_off()
-        cb = fig.colorbar(im, ax=list(bot), fraction=0.02, pad=0.01)
-        cb.ax.tick_params(labelsize=7)
-        cb.set_label("radiance (|error| and std)", fontsize=7)
-        fig.colorbar(im, ax=list(top), fraction=0.02, pad=0.01).ax.set_visible(False)   # keep the columns aligned
-    return save_figure(fig, path, dpi=90, tight=True)
-
-
 def _coverage(obs, mesh, novel_gbuffer, resolution: int) -> dict:
     """Which texels some observed photo sees (``texel_seen [R, R]``) and which novel-view pixels look at one
     (``pixel_seen [V, H, W]``, numpy), by each pixel's nearest texel."""
@@ -257,23 +222,16 @@ def _coverage(obs, mesh, novel_gbuffer, resolution: int) -> dict:
 def _texture_figure(path, truth, est, post, seen, name: str):
     """Texture space on a mesh: true and (b4) roughness, the posterior std of roughness and albedo, with the
     texels no photo sees (atlas gaps and hidden parts: they keep the prior) marked."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from ..uncertainty import show_map
-
     unseen = {"no photo sees it": ~seen}
     sd = post.std()
-    panels = [("true roughness", truth.roughness[0], 1.0, None), ("(b4) roughness", est["roughness"][0], 1.0, unseen),
-              ("posterior std: roughness", sd["roughness"][0], float(sd["roughness"].max()), unseen),
-              ("posterior std: albedo (mean RGB)", sd["albedo"].mean(0), float(sd["albedo"].mean(0).max()), unseen)]
-    fig, axes = plt.subplots(1, len(panels), figsize=(2.7 * len(panels), 3.0))
-    for ax, (lab, a, vmax, masks) in zip(axes, panels):
-        show_map(fig, ax, np.asarray(a.detach().float()), 0.0, vmax, lab, fontsize=8, masks=masks)
-    fig.suptitle(f"Fig. 4 on the {name}: texture space (the maps the posterior is over)", fontsize=9)
-    fig.tight_layout()
-    return save_figure(fig, path)
+    panels = [map_panel(truth.roughness[0], "true roughness", vmax=1.0),
+              map_panel(est["roughness"][0], "(b4) roughness", vmax=1.0, masks=unseen),
+              map_panel(sd["roughness"][0], "posterior std: roughness", vmax=float(sd["roughness"].max()),
+                        masks=unseen),
+              map_panel(sd["albedo"].mean(0), "posterior std: albedo (mean RGB)",
+                        vmax=float(sd["albedo"].mean(0).max()), masks=unseen)]
+    return panel_grid(path, panels, style="compact", panel_size=(2.7, 2.7),
+                      title=f"Fig. 4 on the {name}: texture space (the maps the posterior is over)")
 
 
 # ------------------------------------------------------------------ the experiment
@@ -354,13 +312,15 @@ def run(out, preset: str = "small", seed: int = 0, progress: bool = False, **ove
     if mesh:   # off the object: no value (drawn blank), never read as a 0
         std = np.where(mask, std, np.nan)
         errors = {e: np.where(mask, errors[e], np.nan) for e in ESTIMATES}
-    files = [_overview(out / "fig4.png", names, truth_r, est_r, errors, std, vmaxes)]
+    files = [fig4_overview(out / "fig4.png", names, truth_r,
+                           {LABELS[e]: (e[:2], est_r[e], errors[e]) for e in ESTIMATES}, std, vmaxes)]
     where = f" on the {surface.name} (blank: off the object)" if mesh else ""
     for v, name in enumerate(names):
-        panels = [("std (Eq. 11)", std[v])] + [(f"|error| {LABELS[e]}", errors[e][v]) for e in ESTIMATES]
-        files.append(figure_grid(out / f"fig4_{name}.png", panels, ncols=5, vmax=vmaxes[v],
-                                 title=f"Fig. 4, novel view '{name}'{where}: image-space std and |error| of "
-                                       f"(b1)-(b4), one range"))
+        panels = [map_panel(std[v], "std (Eq. 11)", vmax=vmaxes[v])] + [
+            map_panel(errors[e][v], f"|error| {LABELS[e]}", vmax=vmaxes[v]) for e in ESTIMATES]
+        files.append(panel_grid(out / f"fig4_{name}.png", panels, ncols=5, style="compact",
+                                title=f"Fig. 4, novel view '{name}'{where}: image-space std and |error| of "
+                                      f"(b1)-(b4), one range"))
     if mesh:
         files.append(_texture_figure(out / "fig4_texture.png", truth, est["b4_ours"], post, coverage["texel_seen"],
                                      surface.name))

@@ -28,18 +28,19 @@ import time
 import numpy as np
 import torch
 
-from .common import FIGURE_SAMPLER, PAPER_SIGMA, SURFACE, figure_grid, prepare, save_figure, write_json
+from .common import FIGURE_SAMPLER, PAPER_SIGMA, SURFACE, prepare, write_json
 from ..guidance.acquisition import SyntheticCapture
 from ..inference import infer
 from ..models.data import ModelData
 from ..models.material import per_texel
 from ..models.priors import gaussian, uniform
+from ..plots import fig5_overview, map_panel, panel_grid
 from ..potential import Potential
 from ..render.cameras import RectifiedCamera
 from ..render.maps import SVBRDF
 from ..render.shade import render
 from ..render.views import View, collocated_views
-from ..uncertainty import CMAP, image_std
+from ..uncertainty import image_std
 
 DESCRIPTION = "Fig. 5: prior awareness: a smooth plane (roughness 0.12) without / with a low-roughness prior"
 
@@ -74,42 +75,6 @@ def _sample(model, obs, cfg, seed, progress):
 def novel_view(resolution: int, radius: float = 3.0, power: float = 10.0) -> View:
     """Collocated camera and flash straight above the sample: the highlight sits in the middle of the image."""
     return View.collocated(RectifiedCamera((0.0, 0.0, radius), resolution=resolution), power=power, name="top")
-
-
-def _overview(path, res, truth_render, hist, vmaxes, truth_rough):
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    cols = [("render", "novel view: MAP render"), ("rough_map", "roughness (MAP)"),
-            ("rough_std", "roughness std (Eq. 9)"), ("albedo_err", "|albedo error| (MAP)"),
-            ("img_std", "novel-view std (Eq. 11)")]
-    fig = plt.figure(figsize=(14.5, 5.6))
-    gs = fig.add_gridspec(2, 7, width_ratios=[1, 1, 1, 1, 1, 0.12, 1.5], wspace=0.35, hspace=0.25)
-    exposure = float(np.percentile(truth_render, 99.0)) or 1.0
-    for r, p in enumerate(PRIORS):
-        for c, (key, title) in enumerate(cols):
-            ax = fig.add_subplot(gs[r, c])
-            ax.set_axis_off()
-            if key == "render":
-                ax.imshow(np.clip(res[p][key] / exposure, 0, 1) ** (1 / 2.2), interpolation="nearest")
-            else:
-                im = ax.imshow(res[p][key], cmap=CMAP, vmin=0, vmax=vmaxes[key], interpolation="nearest")
-                cb = fig.colorbar(im, ax=ax, fraction=0.046, pad=0.03)
-                cb.ax.tick_params(labelsize=6)
-            ax.set_title(f"{title}\n{LABELS[p]}", fontsize=7)
-    ax = fig.add_subplot(gs[:, 6])
-    bins = np.linspace(0.05, 1.0, 39)
-    for p in PRIORS:
-        ax.hist(hist[p], bins=bins, alpha=0.6, density=True, label=LABELS[p])
-    ax.axvline(truth_rough, color="k", ls="--", lw=1, label="truth")
-    ax.set_xlabel("roughness (all particles, all texels)", fontsize=8)
-    ax.set_ylabel("density", fontsize=8)
-    ax.tick_params(labelsize=7)
-    ax.legend(fontsize=7)
-    fig.suptitle("Fig. 5: smooth plane, 10 collocated views, without (top) / with (bottom) a low-roughness prior",
-                 fontsize=9)
-    return save_figure(fig, path, dpi=85, tight=True)
 
 
 def run(out, preset: str = "small", seed: int = 0, progress: bool = False, **overrides) -> dict:
@@ -170,7 +135,10 @@ def run(out, preset: str = "small", seed: int = 0, progress: bool = False, **ove
         return float(max(np.percentile(res[p][key], 99) for p in PRIORS)) or 1e-6
     vmaxes = {"rough_map": 1.0, "rough_std": vmax("rough_std"), "albedo_err": vmax("albedo_err"),
               "img_std": vmax("img_std")}
-    files = [_overview(out / "fig5.png", res, truth_render, hist, vmaxes, rough)]
+    files = [fig5_overview(out / "fig5.png", {LABELS[p]: res[p] for p in PRIORS}, truth_render,
+                           {LABELS[p]: hist[p] for p in PRIORS}, vmaxes, rough,
+                           title="Fig. 5: smooth plane, 10 collocated views, without (top) / with (bottom) a "
+                                 "low-roughness prior", hist_label="roughness (all particles, all texels)")]
     files.append(_std_grid(out / "fig5_image_std.png", res))
 
     u, g = nums["uniform"], nums["gaussian"]
@@ -192,6 +160,6 @@ def run(out, preset: str = "small", seed: int = 0, progress: bool = False, **ove
 
 
 def _std_grid(path, res):
-    """The novel-view image-space std side by side (one range), via :func:`figure_grid`."""
-    return figure_grid(path, [(LABELS[p], res[p]["img_std"]) for p in PRIORS],
-                       title="Fig. 5: novel-view image-space std (Eq. 11), one range")
+    """The novel-view image-space std side by side (one range)."""
+    return panel_grid(path, [map_panel(res[p]["img_std"], LABELS[p]) for p in PRIORS], share=True, style="compact",
+                      title="Fig. 5: novel-view image-space std (Eq. 11), one range")

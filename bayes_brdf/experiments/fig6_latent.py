@@ -24,10 +24,9 @@ from __future__ import annotations
 import math
 import time
 
-import numpy as np
 import torch
 
-from .common import SHARED_DATA, camera_clip, prepare, save_figure, say, synthetic, write_json
+from .common import SHARED_DATA, camera_clip, prepare, say, synthetic, write_json
 from .fig4_image_space import novel_views
 from ..errors import InputError
 from ..guidance.acquisition import SyntheticCapture
@@ -35,8 +34,9 @@ from ..inference import infer
 from ..materials.augment import HELD_OUT_SEED
 from ..models.latent_decoder import latent_decoder
 from ..models.material import per_texel
+from ..plots import fig6_overview
 from ..runs.heldout import predict
-from ..uncertainty import CMAP, correlations, coverage
+from ..uncertainty import correlations, coverage
 
 DESCRIPTION = "Fig. 6: latent-space (MaterialGAN-style decoder) posterior vs per-texel: std vs error, coverage, time"
 
@@ -90,32 +90,6 @@ def _map_std(post) -> dict:
     return {k: float(sd[k].mean()) for k in ("albedo", "roughness") if k in sd}
 
 
-def _figure(path, rows):
-    import matplotlib.pyplot as plt
-    ncol = 1 + 3 * len(MODELS)
-    fig, axes = plt.subplots(len(rows), ncol, figsize=(2.0 * ncol, 2.2 * len(rows)), squeeze=False)
-    for r, (title, truth, per_model) in enumerate(rows):
-        axes[r, 0].imshow(np.clip(truth, 0, 1) ** (1 / 2.2))
-        axes[r, 0].set_title(f"{title}\nheld-out photo", fontsize=8)
-        vmax = max(float(np.quantile(np.concatenate([p["err"].ravel(), p["std"].ravel()]), 0.99))
-                   for p in per_model.values()) or 1.0
-        for m, name in enumerate(MODELS):
-            p = per_model[name]
-            c = 1 + 3 * m
-            axes[r, c].imshow(np.clip(p["pred"], 0, 1) ** (1 / 2.2))
-            axes[r, c].set_title(f"{name}: MAP render", fontsize=8)
-            axes[r, c + 1].imshow(p["err"].mean(-1), cmap=CMAP, vmin=0, vmax=vmax)
-            axes[r, c + 1].set_title("|MAP - photo|", fontsize=8)
-            im = axes[r, c + 2].imshow(p["std"].mean(-1), cmap=CMAP, vmin=0, vmax=vmax)
-            axes[r, c + 2].set_title(f"std (Eq. 11), Spearman {p['spearman']:.2f}", fontsize=8)
-        fig.colorbar(im, ax=axes[r, -1], fraction=0.046)
-    for ax in axes.ravel():
-        ax.set_xticks([]), ax.set_yticks([])
-    fig.suptitle("Fig. 6: latent-space posterior (MaterialGAN-style decoder) vs per-texel maps; "
-                 "one colour range per row", fontsize=9)
-    return save_figure(fig, path, tight=True)
-
-
 def run(out, preset: str = "small", seed: int = 0, progress: bool = False, **overrides) -> dict:
     cfg, out = prepare(__name__, preset, overrides, out)
     results, rows = {"config": cfg, "seed": seed}, []
@@ -166,7 +140,8 @@ def run(out, preset: str = "small", seed: int = 0, progress: bool = False, **ove
         rows.append((f"{cfg['capture']}, view {held_idx[0]}", hobs.images[0].numpy(),
                      {k: v.pop("_img") for k, v in cap.items()}))
         results["capture"] = cap
-    _figure(out / "fig6.png", rows)
+    fig6_overview(out / "fig6.png", rows, title="Fig. 6: latent-space posterior (MaterialGAN-style decoder) vs "
+                                                "per-texel maps; one colour range per row")
     results["summary"] = {k: {m: {"spearman": d[m]["spearman"], "coverage_90": d[m]["coverage"]["90"],
                                   "mae": d[m]["mean_abs_error"], "seconds": d[m]["seconds"]} for m in MODELS}
                           for k, d in (("synthetic", results["synthetic"]), ("capture", results.get("capture")))

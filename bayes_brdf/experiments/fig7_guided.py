@@ -40,8 +40,9 @@ from ..guidance.recommend import low_discrepancy
 from ..guidance.scores import parse_noise_var
 from ..models.material import per_texel
 from ..render.views import collocated_views, hemisphere_directions, light_stage_views
-from .common import (PAPER_SIGMA, SURFACE, SURFACES, is_mesh, line_plot, mesh_rig, prepare, sampler_of,
-                     save_figure, say, scene_surface, write_json)
+from ..plots import line_plot, views_polar
+from .common import (PAPER_SIGMA, SURFACE, SURFACES, is_mesh, mesh_rig, prepare, sampler_of, say, scene_surface,
+                     write_json)
 
 DESCRIPTION = "guided capture (MI) vs low-discrepancy baseline: novel-view error and image-space std vs views"
 
@@ -163,38 +164,18 @@ def _seeds(n) -> str:
 def _views_figure(path, cfg, kind: str, runs: list, seed: int, surface, name: str):
     """Where each method's views went (all seeds): camera directions seen from the centre, polar (radius: zenith
     angle), coloured by the round that added them; light-stage lights as crosses of the same colour."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     centre = tuple(surface.center)
-    fig, axes = plt.subplots(1, 2, subplot_kw={"projection": "polar"}, figsize=(7.6, 3.9))
-    nr = max(len(runs[0]["mi"]) - 1, 1)
-    cmap = plt.get_cmap("viridis")
-    for ax, m in zip(axes, METHODS):
+    panels = {}
+    for m, title in METHODS.items():
+        panels[title] = []
         for s, run in enumerate(runs):
             cands = _setting(cfg, kind, seed + s, surface)[0]
-            groups = [(run["initial"], "0.55", "initial")] + [(row["picks"], cmap(i / max(nr - 1, 1)), f"round {i + 1}")
-                                                             for i, row in enumerate(run[m][:-1])]
-            for idx, colour, lab in groups:
-                dirs = [_directions(cands[i], centre) for i in idx]
-                if not dirs:
-                    continue
-                ax.scatter([math.radians(c[1]) for c, _ in dirs], [c[0] for c, _ in dirs], s=14, color=colour,
-                           label=lab if s == 0 else None, edgecolors="k", linewidths=0.3, zorder=3)
-                if kind == "light_stage":
-                    ax.scatter([math.radians(lt[1]) for _, lt in dirs], [lt[0] for _, lt in dirs], s=14, marker="x",
-                               color=colour, linewidths=0.8, zorder=2)
-        ax.set_ylim(0, 90)
-        ax.set_yticks([30, 60, 90])
-        ax.tick_params(labelsize=6)
-        ax.set_title(METHODS[m], fontsize=8)
-    axes[1].legend(fontsize=6, loc="upper left", bbox_to_anchor=(1.05, 1.0))
+            groups = [run["initial"]] + [row["picks"] for row in run[m][:-1]]
+            panels[title].append([(r, [_directions(cands[i], centre) for i in idx]) for r, idx in enumerate(groups)])
     what = "cameras (dots) and lights (crosses)" if kind == "light_stage" else "cameras"
-    fig.suptitle(f"Fig. 7, {kind.replace('_', ' ')} on the {name}: {what} of {_seeds(len(runs))}, seen from above "
-                 f"(radius: zenith angle)", fontsize=8)
-    fig.tight_layout()
-    return save_figure(fig, path)
+    return views_polar(path, panels, rounds=max(len(runs[0]["mi"]) - 1, 1), lights=kind == "light_stage",
+                       title=f"Fig. 7, {kind.replace('_', ' ')} on the {name}: {what} of {_seeds(len(runs))}, "
+                             f"seen from above (radius: zenith angle)")
 
 
 SETTING_TYPES = {"noise_var": parse_noise_var}
@@ -230,8 +211,7 @@ def run(out, preset: str = "small", seed: int = 0, progress: bool = False, **ove
         for key, label in (("novel_error", "novel-view error of the MAP"),
                            ("mean_image_std", "mean image-space std (Eq. 11)")):
             line_plot(out / f"fig7_{kind}_{key}.png",
-                      {METHODS[m]: (curves[m]["views"], curves[m][key]) for m in METHODS},
-                      errors={METHODS[m]: curves[m][key + "_sem"] for m in METHODS},
+                      {METHODS[m]: (curves[m]["views"], curves[m][key], curves[m][key + "_sem"]) for m in METHODS},
                       xlabel="number of views", ylabel=label,
                       title=(f"Fig. 7, {kind.replace('_', ' ')} on the {name}:\nmean of {_seeds(cfg['seeds'])} "
                              f"(bars: s.e.)" if is_mesh(surface) else

@@ -63,7 +63,8 @@ def rgb_panel(img, title: str) -> dict:
 
 def map_panel(value, title: str, vmin: float = 0.0, vmax: float | None = None, masks: dict | None = None) -> dict:
     """A value panel (channels averaged) with a colour bar from ``vmin`` to ``vmax`` (``None``: the 99th
-    percentile of this map, or of all such panels of a ``share``\\ d :func:`panel_grid`)."""
+    percentile of this map, or the largest of those of all such panels in a :func:`panel_grid` with
+    ``share=True``)."""
     return {"map": scalar_map(value).numpy(), "title": title, "vmin": vmin, "vmax": vmax, "masks": masks}
 
 

@@ -115,3 +115,31 @@ def train_decoder(cfg: TrainConfig, out: Path, *, checkpoint: Path | None = None
         checkpoint.unlink()
     log(f"wrote {out} ({out.stat().st_size / 1e6:.1f} MB) in {total + data_seconds:.0f} s")
     return summary
+
+
+def read_curve(weights) -> list[dict]:
+    """The training curve that :func:`train_decoder` wrote beside ``weights`` (``WEIGHTS.curve.json``): one
+    ``{"step", "loss", "l1", "kl", "seconds", ...}`` per step (drawn by :func:`bayes_brdf.plots.decoder_curve`)."""
+    return json.loads(Path(str(weights) + ".curve.json").read_text())
+
+
+def decoded_samples(weights, n: int = 8, seed: int = 0) -> list[tuple[str, torch.Tensor]]:
+    """``n`` decoded samples ``z ~ N(0, I)`` (zero noise) of ``weights`` as rows ``(name, [n, H, W, 3])`` in
+    display values: albedo (gamma 2.2), normal, roughness and a flash render (drawn by
+    :func:`bayes_brdf.plots.decoder_samples`)."""
+    from ..models.decoder_file import load_decoder
+    from ..models.svbrdf_channels import decode
+    from ..render import PlanarSample, collocated_views
+    from ..render.shade import render
+
+    g = load_decoder(weights)
+    z = torch.randn(n, g.cfg.z_dim, generator=torch.Generator().manual_seed(seed))
+    with torch.no_grad():
+        w = g.mapping(z)[:, None].expand(-1, g.num_ws, -1)
+        maps = decode(g(w, g.zero_noise(n)))
+        view = collocated_views(1, 3.0, camera="rectified", resolution=g.cfg.resolution, power=12.0, max_zenith=20.0)
+        img = render(maps, view, PlanarSample(2.0))[:, 0]
+    return [("albedo", maps.albedo.permute(0, 2, 3, 1) ** (1 / 2.2)),
+            ("normal", maps.normal.permute(0, 2, 3, 1) * 0.5 + 0.5),
+            ("roughness", maps.roughness.permute(0, 2, 3, 1).expand(-1, -1, -1, 3)),
+            ("flash render", img.clamp(0, 1) ** (1 / 2.2))]

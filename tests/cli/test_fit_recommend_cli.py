@@ -175,7 +175,7 @@ def test_fit_heldout_maps_share_one_range_and_draw_clipped_pixels(shared_data, t
     from PIL import Image
 
     from bayes_brdf.io import load_capture, read_image
-    from bayes_brdf.uncertainty import MASK_COLOURS
+    from bayes_brdf.plots import MASK_COLOURS
 
     out = tmp_path / "fit"
     cap = shared_data / "captures" / "card_blue"
