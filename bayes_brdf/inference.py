@@ -24,6 +24,18 @@ from .samplers.driver import run
 
 #: ``steps="auto"`` runs at most this many times the preset's steps
 AUTO_STEPS_CAP = 4
+#: under ``noise = "signal"``, the fraction of the run sampled with one noise scale before its shape is
+#: estimated (SPOS's annealing is over at 38 % of a run)
+NOISE_BURNIN = 0.4
+
+
+def _phase_path(checkpoint, phase: str):
+    """The checkpoint of a run's first phase: ``checkpoint.pt`` -> ``checkpoint_burnin.pt`` (``None``: none)."""
+    if checkpoint is None:
+        return None
+    from pathlib import Path
+    p = Path(checkpoint)
+    return p.with_name(f"{p.stem}_{phase}{p.suffix}")
 
 
 def resolve_model(model):
@@ -107,8 +119,32 @@ def infer(model: "Callable | str | dict", observations: "Observations | ModelDat
         kw["particles"] = z0.shape[0]
     identity = fingerprint(data=data_digest(data, observations_digest), model=model_description(model), seed=seed,
                            start="prior" if z0 is None else digest_tensor(z0))
+    noise_level, burnin = None, None
+    if getattr(model, "noise", "constant") == "signal" and callable(getattr(model, "maps", None)):
+        # two phases (bayes_brdf.noise_estimate): a burn-in under one noise scale, whose particles' residuals
+        # give the noise level's shape; then the rest of the run under the per-pixel scale
+        from .noise_estimate import estimate_noise
+        steps1 = max(1, round(NOISE_BURNIN * kw["steps"]))
+        kw1 = {**kw, "steps": steps1, "max_steps": None}
+        burnin = run(smp, pot, seed=seed, checkpoint=_phase_path(checkpoint, "burnin"), progress=progress,
+                     z0=z0, identity={**identity, "phase": "burnin"}, **kw1)
+        data, noise_level = estimate_noise(model, data, pot.to_constrained(burnin.z))
+        pot = Potential(model, (data,))
+        z0 = burnin.z
+        kw["steps"] = max(1, kw["steps"] - steps1)
+        if kw.get("max_steps"):
+            kw["max_steps"] = max(kw["steps"], kw["max_steps"] - steps1)
+        if "anneal" in smp.params():          # the particles are past the burn-in: no second annealing
+            smp = type(smp).from_params({**smp.params(), "anneal": False})
+        identity = {**identity, "phase": "signal noise", "noise_level": noise_level.to_dict()}
     res = run(smp, pot, seed=seed, checkpoint=checkpoint, progress=progress, callbacks=callbacks, z0=z0,
               identity=identity, **kw)
+    if burnin is not None:
+        res.steps += burnin.steps
+        res.seconds += burnin.seconds
+        res.evaluations += burnin.evaluations
+        if res.diagnostics is not None:        # the remedy speaks of the whole run
+            res.diagnostics.steps = res.steps
     with torch.no_grad():
         energies = pot.energy(res.z, jacobian=False)
     meta = {"sampler": smp.name, "params": smp.params(), "run": vars(cfg), "seed": seed,
@@ -120,6 +156,8 @@ def infer(model: "Callable | str | dict", observations: "Observations | ModelDat
     if infers_sigma(model):
         s = model.noise_sigma(data, pot.to_constrained(res.z))
         meta["noise_sigma"] = float(s.mean())
+    if noise_level is not None:
+        meta["noise_level"] = noise_level.to_dict()
     post = Posterior(pot.to_constrained(res.z), energies, z=res.z, meta=meta, potential=pot, model=model,
                      log={"seconds": res.seconds, "resumed_from": res.resumed_from, "steps": res.steps},
                      surface=data.observations.surface)
@@ -128,5 +166,5 @@ def infer(model: "Callable | str | dict", observations: "Observations | ModelDat
     if map_steps:
         post.refine_map(map_steps)
     if res.diagnostics is not None and not res.diagnostics.converged:
-        warnings.warn(res.diagnostics.message(f"rerun with steps={2 * res.steps}"), ConvergenceWarning, stacklevel=2)
+        warnings.warn(res.diagnostics.message(), ConvergenceWarning, stacklevel=2)
     return post

@@ -73,6 +73,16 @@ class Posterior:
         return float(s) if isinstance(s, (int, float)) and not isinstance(s, bool) else None
 
     @property
+    def noise_level(self):
+        """The signal-dependent noise level (:class:`~bayes_brdf.models.noise.NoiseLevel`) the run estimated
+        (``noise = "signal"``), or ``None``: the pixel scale is then ``noise_sigma`` everywhere."""
+        d = self.meta.get("noise_level")
+        if not isinstance(d, dict):
+            return None
+        from .models.noise import NoiseLevel
+        return NoiseLevel.from_dict(d)
+
+    @property
     def diagnostics(self) -> dict | None:
         """The run's convergence checks (``{"converged", "failed", "checks"}``), or ``None``."""
         return self.meta.get("diagnostics")

@@ -112,7 +112,9 @@ def predictive_cdf(post, views, images: Tensor, surface: PlanarSample | None = N
     samples). A pixel lies in the central ``p`` interval iff
     ``|F - 1/2| <= p/2``; calibrated predictions give uniform ``F``.
     ``sigma``/``kind`` default to the posterior's (``post.noise_sigma``: the model's
-    sigma or the inferred one; ``model.likelihood``). Returns ``(F, std, mean)``, each ``[V, H, W, 3]``.
+    sigma or the inferred one; ``model.likelihood``). Under signal-dependent noise
+    (``post.noise_level``) a particle's scale at a pixel is ``sigma * g(R_i)``, ``g`` of the mean
+    over channels of its render there. Returns ``(F, std, mean)``, each ``[V, H, W, 3]``.
     """
     model = getattr(post, "model", None)
     sigma = float(sigma if sigma is not None else getattr(post, "noise_sigma", None) or 0)
@@ -120,9 +122,11 @@ def predictive_cdf(post, views, images: Tensor, surface: PlanarSample | None = N
     if not sigma > 0:
         raise InputError("the predictive needs the likelihood's noise scale", fix="pass sigma= (image units)")
     y = torch.as_tensor(images)
+    level = getattr(post, "noise_level", None)
     Fs, stds, means = [], [], []
     for s, e, r, _ in particle_renders(post, views, surface, chunk_views=chunk_views):
-        t = (y[s:e].to(r).permute(0, 3, 1, 2)[None] - r) / sigma
+        scale = sigma if level is None else sigma * level.relative(r.mean(2, keepdim=True)).to(r)
+        t = (y[s:e].to(r).permute(0, 3, 1, 2)[None] - r) / scale
         if kind == "laplace":
             cdf = torch.where(t < 0, 0.5 * torch.exp(t.clamp_max(0)), 1 - 0.5 * torch.exp(-t.clamp_min(0)))
         else:

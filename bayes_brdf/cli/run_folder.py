@@ -17,7 +17,7 @@ import time
 from pathlib import Path
 
 #: what a sampling command writes into its folder (removed by --overwrite)
-OWNED = ("checkpoint.pt", "posterior.safetensors", "summary.json", "run_log.jsonl", "mean", "map", "std",
+OWNED = ("checkpoint.pt", "checkpoint_burnin.pt", "posterior.safetensors", "summary.json", "run_log.jsonl", "mean", "map", "std",
          "heldout", "recommend.json", "candidates.png")
 
 

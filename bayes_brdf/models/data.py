@@ -29,6 +29,7 @@ class Censored:
     level: Tensor
     view: Tensor
     weight: Tensor
+    noise: Tensor | None = None     # [K] relative noise scale (signal-dependent noise), or None
 
     @classmethod
     def from_pixels(cls, g: GBuffer, images: Tensor, pixels: Tensor) -> "Censored | None":
@@ -49,7 +50,8 @@ class Censored:
         if not bool(keep.any()):
             return None
         new = torch.searchsorted(idx, self.view[keep])
-        return Censored(self.gbuffer.gather(keep[None, None]), self.level[keep], new, self.weight[keep])
+        return Censored(self.gbuffer.gather(keep[None, None]), self.level[keep], new, self.weight[keep],
+                        None if self.noise is None else self.noise[keep])
 
 
 @dataclass
@@ -62,7 +64,9 @@ class ModelData:
     clipped pixel only bounds the radiance from below: see :class:`Censored`);
     ``scale`` multiplies the log-likelihood (``V / |batch|`` for a minibatch of
     views, ``1 / fraction`` for a pixel subsample) so that stochastic gradients
-    are unbiased.
+    are unbiased. ``noise [V, H, W]`` (``None``: one scale everywhere) is each pixel's relative noise
+    scale ``g`` under signal-dependent noise (:mod:`bayes_brdf.models.noise`): the likelihood's scale
+    there is ``sigma * g``.
 
     Example:
         >>> from bayes_brdf.render.views import collocated_views
@@ -78,6 +82,7 @@ class ModelData:
     observations: Observations
     scale: float = 1.0
     censored: Censored | None = None
+    noise: Tensor | None = None
 
     @classmethod
     def from_observations(cls, obs: Observations, *, dtype=torch.float32, device=None) -> "ModelData":
@@ -100,6 +105,27 @@ class ModelData:
             raise InputError("the observed images contain NaN or infinite values on usable pixels",
                              fix="mask those pixels out (Observations.mask)")
         return cls(g, imgs.contiguous(), w.to(dtype), obs, censored=Censored.from_pixels(g, imgs, sat))
+
+    def noise_weight(self, kind: str = "laplace") -> Tensor:
+        """The pixel weights of the residual sum: ``weight / g`` (Laplace) or ``weight / g^2`` (Gaussian)."""
+        if self.noise is None:
+            return self.weight
+        return self.weight / (self.noise if kind == "laplace" else self.noise * self.noise)
+
+    def noise_log_norm(self) -> Tensor | float:
+        """``sum w log g`` over pixels and channels: the normalising term of the per-pixel scales (0 without)."""
+        return 0.0 if self.noise is None else 3 * (self.weight * self.noise.log()).sum()
+
+    def with_noise(self, relative: Tensor, censored: Tensor | None = None) -> "ModelData":
+        """A copy whose pixels have relative noise scales ``relative [V, H, W]`` (and ``censored [K]`` for
+        the saturated pixels, in the order of :attr:`censored`)."""
+        relative = torch.as_tensor(relative, dtype=self.dtype, device=self.device)
+        if tuple(relative.shape) != tuple(self.weight.shape) or not bool((relative[self.weight > 0] > 0).all()):
+            raise InputError(f"relative noise scales must be positive and of shape {tuple(self.weight.shape)}")
+        c = self.censored
+        if c is not None:
+            c = replace(c, noise=None if censored is None else torch.as_tensor(censored).to(c.level))
+        return replace(self, noise=relative.clamp_min(1e-6).contiguous(), censored=c)
 
     @property
     def num_views(self) -> int:
@@ -126,6 +152,7 @@ class ModelData:
             idx = torch.randperm(self.num_views, generator=generator)[:views].sort().values
             d = replace(d, gbuffer=d.gbuffer.views_index(idx), images=d.images[idx.to(d.device)],
                         weight=d.weight[idx.to(d.device)],
+                        noise=None if d.noise is None else d.noise[idx.to(d.device)],
                         censored=None if d.censored is None else d.censored.views_index(idx))
             scale *= self.num_views / views
         if pixels is not None and pixels < 1.0:

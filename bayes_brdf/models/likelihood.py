@@ -60,31 +60,32 @@ def censored_log_survival(t: torch.Tensor, kind: str) -> torch.Tensor:
 class _CensoredSum(torch.autograd.Function):
     """``sum_{k, c} w_k log P(noise >= level - R)`` per particle, with the derivative in closed form.
 
-    ``r [n, K, 3]`` renders, ``level [K, 3]``, ``sigma [n]``, ``w [K]`` -> ``[n]``. One pass for the value
+    ``r [n, K, 3]`` renders, ``level [K, 3]``, ``sigma [n]``, ``w [K]`` -> ``[n]``; ``g [K]`` (optional) the
+    pixels' relative noise scales (signal-dependent noise: the scale is ``sigma * g``). One pass for the value
     and the derivative (``d log S / dt``, kept for backward) instead of a chain of autograd nodes: these
     pixels are shaded apart from the fused loss, so their elementwise cost is what censoring adds per step.
     """
 
     @staticmethod
-    def forward(ctx, r, level, sigma, w, kind):
+    def forward(ctx, r, level, sigma, w, kind, g=None):
         s = sigma.reshape(-1, 1, 1)
-        t = (level[None] - r).div_(s)
+        t = (level[None] - r).div_(s if g is None else s * g[None, :, None])
         val = censored_log_survival(t, kind)
         if kind == "laplace":       # d/dt: -1 above 0; below, -(e^t / 2) / (1 - e^t / 2) = 1 - 1 / S
             dlog = torch.where(t >= 0, torch.full_like(t, -1.0), 1 - val.neg().exp_())
         else:
             dlog = (-0.5 * t * t - 0.5 * math.log(2 * math.pi) - val).exp_().neg_()   # -phi(t) / Phi(-t)
         ww = w[None, :, None]
-        ctx.save_for_backward(t, dlog, s, ww)
+        ctx.save_for_backward(t, dlog, s if g is None else s * g[None, :, None], s, ww)
         return (val * ww).sum((1, 2))
 
     @staticmethod
-    def backward(ctx, g):
-        t, dlog, s, ww = ctx.saved_tensors
-        gt = dlog.mul_(ww).mul_(g.reshape(-1, 1, 1))                      # d out / d t
-        gr = gt.div(s).neg_() if ctx.needs_input_grad[0] else None      # t = (level - r) / s
+    def backward(ctx, grad):
+        t, dlog, sp, s, ww = ctx.saved_tensors
+        gt = dlog.mul_(ww).mul_(grad.reshape(-1, 1, 1))                   # d out / d t
+        gr = gt.div(sp).neg_() if ctx.needs_input_grad[0] else None     # t = (level - r) / (s g)
         gs = (gt * t).sum((1, 2)).div_(s.reshape(-1)).neg_() if ctx.needs_input_grad[2] else None
-        return gr, None, gs, None, None
+        return gr, None, gs, None, None, None
 
 
 def check_saturated(saturated):
@@ -147,14 +148,14 @@ class RenderedImages(TorchDistribution):
 
     def _norm_const(self) -> torch.Tensor:
         per = math.log(2 * self.sigma) if self.kind == "laplace" else 0.5 * math.log(2 * math.pi * self.sigma ** 2)
-        return 3 * self.data.weight.sum() * per
+        return 3 * self.data.weight.sum() * per + self.data.noise_log_norm()
 
     def residual(self, value) -> tuple[torch.Tensor, torch.Tensor]:
         """``(e [n], N)``: the weighted residual sum (``|y - R|``, or ``(y - R)^2`` for Gaussian) and the count
         of observed values it sums over."""
         d = self.data
-        e = shade_loss(self.maps, d.gbuffer, value, d.weight, kind="l1" if self.kind == "laplace" else "l2",
-                       backend=self.backend)
+        e = shade_loss(self.maps, d.gbuffer, value, d.noise_weight(self.kind),
+                       kind="l1" if self.kind == "laplace" else "l2", backend=self.backend)
         return e, 3 * d.weight.sum()
 
     def sigma_hat(self, value) -> torch.Tensor:
@@ -172,7 +173,8 @@ class RenderedImages(TorchDistribution):
             return torch.zeros(n, dtype=self.data.dtype, device=self.data.device)
         r = shade(self.maps, c.gbuffer, backend=self.backend)[:, 0, 0]              # [n, K, 3]
         s = torch.as_tensor(sigma, dtype=r.dtype, device=r.device).reshape(-1).expand(r.shape[0])
-        return _CensoredSum.apply(r, c.level.to(r), s, c.weight.to(r), self.kind)
+        g = None if c.noise is None else c.noise.to(r)
+        return _CensoredSum.apply(r, c.level.to(r), s, c.weight.to(r), self.kind, g)
 
     def log_prob(self, value):
         d = self.data
@@ -185,13 +187,13 @@ class RenderedImages(TorchDistribution):
                 s2 = (e / N).clamp_min(self.sigma_floor ** 2)
                 s = s2.sqrt()
                 lp = -(0.5 * N * torch.log(2 * math.pi * s2) + e / (2 * s2))
-            lp = (lp + self.censored_log_prob(s)) * d.scale
+            lp = (lp - d.noise_log_norm() + self.censored_log_prob(s)) * d.scale
             return lp if self.maps.num_particles is not None else lp[0]
+        w = d.noise_weight(self.kind)
         if self.kind == "laplace":
-            e = shade_loss(self.maps, d.gbuffer, value, d.weight / self.sigma, kind="l1", backend=self.backend)
+            e = shade_loss(self.maps, d.gbuffer, value, w / self.sigma, kind="l1", backend=self.backend)
         else:
-            e = shade_loss(self.maps, d.gbuffer, value, d.weight / (2 * self.sigma ** 2), kind="l2",
-                           backend=self.backend)
+            e = shade_loss(self.maps, d.gbuffer, value, w / (2 * self.sigma ** 2), kind="l2", backend=self.backend)
         lp = (self.censored_log_prob(self.sigma) - e - self._norm_const()) * d.scale
         return lp if self.maps.num_particles is not None else lp[0]
 
@@ -204,8 +206,11 @@ class RenderedImages(TorchDistribution):
         with torch.no_grad():
             mu = self.mean_images().expand(torch.Size(sample_shape) + self.batch_shape + self.event_shape)
             sig = self.sigma if self.sigma != "auto" else float(self.sigma_hat(self.data.images).mean())
+            scale = torch.full_like(mu, sig)
+            if self.data.noise is not None:
+                scale = scale * self.data.noise[..., None].to(mu)
             noise = (torch.distributions.Laplace if self.kind == "laplace" else torch.distributions.Normal)(
-                torch.zeros_like(mu), torch.full_like(mu, sig)).sample()
+                torch.zeros_like(mu), scale).sample()
             w = self.data.weight[..., None] > 0
             return torch.where(w, mu + noise, mu)
 

@@ -1,0 +1,131 @@
+"""Signal-dependent noise: a camera-like noise level function ``s(y)^2 = a + b y + c y^2``.
+
+Why: the error between a photo and any forward model is not the same everywhere. A camera adds read
+noise (``a``) and shot noise (``b y``); quantising to 8 bits after a gamma curve adds a step that grows
+with the radiance; a model that is a little off (the flash's falloff, the BRDF's lobe shape) is off in
+proportion to the radiance (``c y^2``). One noise scale for every pixel is then too wide on the dark
+pixels and too narrow on the highlights: the held-out intervals are right on average and wrong by
+brightness, and so by split and resolution (the share of highlights changes).
+
+:class:`NoiseLevel` is the shape of that function, estimated once from data. The likelihood keeps its one
+overall scale ``sigma`` (inferred, integrated out as before) and multiplies it per pixel by
+``g(y) = s(y) / s_ref``, the shape normalised to 1 at the mean observed radiance; so every fixed-sigma
+and ``sigma = "auto"`` rule of :mod:`bayes_brdf.models.likelihood` holds per pixel. The signal ``y`` of a
+pixel is the mean over its channels of a *render* (the pre-fit's render on the fitted photos, a particle's
+on held-out views), never the photo itself: a noisy photo would otherwise weigh its own noise.
+
+:func:`fit_noise_level` estimates ``(a, b, c)`` by maximum likelihood from residuals (Laplace or Gaussian),
+``a, b, c >= 0``.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+from torch import Tensor
+
+from ..errors import InputError
+
+NOISE_KINDS = ("constant", "signal")
+
+
+@dataclass(frozen=True)
+class NoiseLevel:
+    """The shape ``g(y) = sqrt(a + b y + c y^2) / sqrt(a + b y_ref + c y_ref^2)`` of the per-pixel noise scale.
+
+    ``a, b, c`` are the fitted variance coefficients in image units (``s(y)`` is then a Laplace scale,
+    or a Gaussian std, at radiance ``y``); ``y_ref`` the radiance where ``g = 1``.
+
+    Example:
+        >>> nl = NoiseLevel(a=1e-4, b=0.0, c=0.01, y_ref=0.1)
+        >>> round(float(nl.relative(torch.tensor(0.1))), 6), round(float(nl.scale(torch.tensor(1.0))), 4)
+        (1.0, 0.1005)
+    """
+
+    a: float
+    b: float
+    c: float
+    y_ref: float
+
+    def scale(self, y: Tensor) -> Tensor:
+        """``s(y)``: the noise scale the fit found at radiance ``y`` (image units, elementwise)."""
+        y = y.clamp_min(0)
+        return (self.a + self.b * y + self.c * y * y).clamp_min(1e-20).sqrt()
+
+    def relative(self, y: Tensor) -> Tensor:
+        """``g(y) = s(y) / s(y_ref)`` (elementwise)."""
+        return self.scale(y) / float(self.scale(torch.tensor(self.y_ref, dtype=torch.float64)))
+
+    def to_dict(self) -> dict:
+        return {"a": self.a, "b": self.b, "c": self.c, "y_ref": self.y_ref}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "NoiseLevel":
+        try:
+            return cls(*(float(d[k]) for k in ("a", "b", "c", "y_ref")))
+        except (KeyError, TypeError, ValueError):
+            raise InputError(f"not a noise level: {d!r}", fix="a table with a, b, c and y_ref") from None
+
+
+def check_noise(noise) -> None:
+    if noise not in NOISE_KINDS:
+        raise InputError(f"noise must be one of {', '.join(NOISE_KINDS)}, got {noise!r}",
+                         fix="\"signal\": a noise scale that grows with the radiance (camera-like); "
+                             "\"constant\": one scale for every pixel")
+
+
+def fit_noise_level(signal: Tensor, residual: Tensor, *, kind: str = "laplace", iters: int = 200) -> NoiseLevel:
+    """Maximum-likelihood ``a, b, c >= 0`` of ``s(y)^2 = a + b y + c y^2`` from residuals.
+
+    Args:
+        signal: the radiance of each value ``[K]`` (a render: what the noise depends on).
+        residual: ``photo - render`` ``[K]`` or ``[K, C]`` (every channel of a pixel shares its scale).
+        kind: ``"laplace"`` (``s`` is the Laplace scale) or ``"gaussian"`` (the std).
+
+    Example:
+        >>> g = torch.Generator().manual_seed(0)
+        >>> y = torch.rand(200_000, generator=g)
+        >>> s = (4e-4 + 0.01 * y * y).sqrt()
+        >>> r = torch.distributions.Laplace(0.0, s).sample()
+        >>> nl = fit_noise_level(y, r)
+        >>> [round(v, 1) for v in (nl.a * 1e4, nl.c * 1e2)]
+        [4.0, 1.0]
+    """
+    y = signal.detach().to(torch.float64).reshape(-1)
+    r = residual.detach().to(torch.float64).reshape(y.shape[0], -1).abs()
+    if y.numel() < 10:
+        raise InputError(f"too few pixels ({y.numel()}) to estimate a noise level", fix="use noise = \"constant\"")
+    y = y.clamp_min(0)
+    ym = float(y.mean())
+    # start: a constant scale (the mean residual), split between the floor and the relative term
+    s0 = float(r.mean()) if kind == "laplace" else float(r.pow(2).mean().sqrt())
+    s0 = max(s0, 1e-6)
+    theta = torch.tensor([math.log(0.5 * s0 * s0), math.log(1e-3 * s0 * s0 / max(ym, 1e-6)),
+                          math.log(0.5 * s0 * s0 / max(ym, 1e-6) ** 2)], dtype=torch.float64, requires_grad=True)
+    y2 = y * y
+
+    def nll():
+        a, b, c = theta.exp()
+        s = (a + b * y + c * y2).sqrt()[:, None]
+        if kind == "laplace":
+            return (torch.log(s) + r / s).mean()
+        return (torch.log(s) + 0.5 * (r / s) ** 2).mean()
+
+    opt = torch.optim.LBFGS([theta], lr=1.0, max_iter=iters, line_search_fn="strong_wolfe",
+                            tolerance_grad=1e-12, tolerance_change=1e-14)
+
+    def closure():
+        opt.zero_grad()
+        loss = nll()
+        loss.backward()
+        return loss
+
+    opt.step(closure)
+    a, b, c = (float(v) for v in theta.detach().exp())
+    if not all(math.isfinite(v) for v in (a, b, c)):
+        raise InputError("the noise level fit did not converge", fix="use noise = \"constant\"")
+    # coefficients far below what they could contribute at the data's radiance are zero
+    top = a + b * float(y.max()) + c * float(y.max()) ** 2
+    a, b, c = (0.0 if v * w < 1e-9 * top else v for v, w in ((a, 1.0), (b, float(y.max())), (c, float(y.max()) ** 2)))
+    return NoiseLevel(a, b, c, ym)

@@ -1,0 +1,55 @@
+"""Estimating the signal-dependent noise level of a capture before sampling (``noise = "signal"``).
+
+The shape of the noise level function ``s(y)^2 = a + b y + c y^2`` (:mod:`bayes_brdf.models.noise`)
+comes from the photos themselves, in two phases of one run (:func:`bayes_brdf.infer`): the burn-in
+samples with one noise scale for every pixel; its particles' residuals on the fitted photos give
+``a, b, c`` (:func:`estimate_noise`); the rest of the run samples with the scale ``sigma * g(y)`` per
+pixel, ``g = s(y) / s(y_ref)`` at the particles' mean render ``y``. Sampling still infers (integrates
+out) the one overall scale ``sigma``, so only the shape is fixed here. The estimate is deterministic
+given the data, the model and the seed, and is recorded in the posterior (``meta["noise_level"]``).
+"""
+from __future__ import annotations
+
+import torch
+
+from .models.data import ModelData
+from .models.noise import NoiseLevel, fit_noise_level
+from .render.shade import shade
+
+
+def estimate_noise(model, data: ModelData, values: dict) -> tuple[ModelData, NoiseLevel]:
+    """``(data with per-pixel relative noise scales, the fitted noise level)`` from posterior draws.
+
+    ``values`` are site values ``{site: [n, ...]}`` of ``n`` particles that sample the posterior under one
+    noise scale (the end of the burn-in). Every particle's residuals ``photo - R(x_i)`` on every usable
+    pixel are samples of the noise at the radiance ``R(x_i)``, pooled over the particles. Residuals of
+    *posterior draws*, not of a point estimate: a per-texel fit has nearly as many parameters per texel as
+    values, and its optimum passes close to the pixels of most leverage (the bright ones), so its residuals
+    shrink exactly where the noise is largest; at a draw from the posterior, the part of the noise the
+    fit absorbed comes back as the draw's own deviation (for a linear-Gaussian model, exactly).
+
+    Example:
+        >>> import bayes_brdf as bb
+        >>> from bayes_brdf.render import SVBRDF, PlanarSample, collocated_views
+        >>> from bayes_brdf.render.shade import render
+        >>> views = collocated_views(3, 3.0, camera="rectified", resolution=16)
+        >>> y = render(SVBRDF.constant(0.5, 0.3), views, PlanarSample(2.0))[0]
+        >>> y = y + 0.01 * torch.randn(y.shape, generator=torch.Generator().manual_seed(0))
+        >>> d = ModelData.from_observations(bb.Observations(views, y, PlanarSample(2.0)))
+        >>> m = bb.models.homogeneous(albedo="gray")
+        >>> d2, nl = estimate_noise(m, d, {"albedo": torch.full((4,), 0.5), "roughness": torch.full((4,), 0.3)})
+        >>> d2.noise.shape == d.weight.shape and nl.y_ref > 0
+        True
+    """
+    with torch.no_grad():
+        r = shade(model.maps(values), data.gbuffer, backend=getattr(model, "backend", "auto"))   # [n, V, H, W, 3]
+        w = data.weight > 0
+        signal = r.mean(-1)                                                                     # [n, V, H, W]
+        level = fit_noise_level(signal[:, w].reshape(-1), (data.images[None] - r)[:, w].reshape(-1, 3),
+                                kind=getattr(model, "likelihood", "laplace"))
+        rel = level.relative(signal.mean(0)).to(data.dtype)
+        rel = torch.where(w, rel, torch.ones_like(rel))
+        cens = None
+        if data.censored is not None:
+            cens = level.relative(data.censored.level.mean(-1)).to(data.dtype)
+    return data.with_noise(rel, cens), level
