@@ -117,8 +117,8 @@ def convergence_note(post) -> str:
     d = post.diagnostics
     if not d or d.get("converged", True):
         return ""
-    steps = int(d.get("steps") or post.meta.get("steps") or 0)
-    return "warning: " + Diagnostics(d["checks"], steps).message(f"rerun with --steps {2 * steps} --overwrite (or a new --out)")
+    diag = Diagnostics.from_dict({**d, "steps": int(d.get("steps") or post.meta.get("steps") or 0)})
+    return "warning: " + diag.message(cli=True)
 
 
 def write_posterior(post, out: Path) -> dict:

@@ -187,6 +187,7 @@ def _run(sampler, potential, *, particles: int = 20, steps: int = 1000, seed: in
     trace = torch.full((cap,), float("nan"), dtype=torch.float64)
     rec = _Recorder(cap, total, z0.shape[1])
     start, seconds0, evals0, horizon = 0, 0.0, 0, steps
+    rec.aim(horizon)
     if ck_path is not None and ck_path.exists() and sampler.exact_resume:
         ck = _load(ck_path, signature)
         state = _fill(state, ck["state"], z0.device)
@@ -195,6 +196,7 @@ def _run(sampler, potential, *, particles: int = 20, steps: int = 1000, seed: in
         start, trace, seconds0, evals0 = ck["t"], ck["trace"], ck["seconds"], ck["evaluations"]
         horizon = int(ck.get("horizon", steps))
         rec.load(ck.get("record"))
+        rec.aim(horizon)
         log.info("resuming from step %d of %d (checkpoint %s)", start, horizon, ck_path)
 
     def save(t, rngs=None):
@@ -246,10 +248,11 @@ def _run(sampler, potential, *, particles: int = 20, steps: int = 1000, seed: in
         while True:
             steps_until(horizon)
             zf = sampler.particles(state).detach()
-            diag = diagnose_run(sampler, potential, rec, zf, horizon)
+            diag = diagnose_run(sampler, potential, rec, zf, horizon, groups)
             if horizon >= cap or diag.converged:
                 break
             horizon = min(cap, horizon + max(1, steps // 2))   # not converged yet: another half run
+            rec.aim(horizon)
             bar.total = horizon
             bar.refresh()
     except KeyboardInterrupt:
@@ -272,12 +275,25 @@ class _Recorder:
         self.stride = max(1, steps // 800)
         self.tracked = torch.full((len(range(0, steps, self.stride)), n, len(self.idx)), float("nan"),
                                   dtype=torch.float32)
+        self.snap_at, self.snapshot = 0, None     # the particles three quarters into the run (stability checks)
+
+    def aim(self, horizon: int):
+        """Keep the particles after step ``3 horizon / 4`` (called whenever the horizon is set)."""
+        at = max(1, (3 * horizon) // 4)
+        if at != self.snap_at:
+            self.snap_at, self.snapshot = at, None
+
+    def earlier(self, horizon: int):
+        """The particles three quarters into a run of ``horizon`` steps, when they were kept."""
+        return self.snapshot if self.snap_at == max(1, (3 * horizon) // 4) else None
 
     def add(self, t: int, e, z: Tensor):
         if e is not None and e.dim() == 1 and e.shape[0] == self.energies.shape[1]:
             self.energies[t] = e.detach().float().cpu()
         if t % self.stride == 0:
             self.tracked[t // self.stride] = z.detach()[:, self.idx.to(z.device)].float().cpu()
+        if t + 1 == self.snap_at:
+            self.snapshot = z.detach().float().cpu().clone()
 
     def second_half(self, done: int) -> tuple[Tensor, Tensor | None]:
         """Energies of steps ``[0, done)`` and the tracked rows of the second half ``[done / 2, done)``."""
@@ -285,14 +301,18 @@ class _Recorder:
         return self.energies[:done], (rows if rows.shape[0] else None)
 
     def state(self) -> dict:
-        return {"energies": self.energies, "tracked": self.tracked}
+        st = {"energies": self.energies, "tracked": self.tracked, "snap_at": self.snap_at}
+        if self.snapshot is not None:
+            st["snapshot"] = self.snapshot
+        return st
 
     def load(self, st):
         if isinstance(st, dict) and st["energies"].shape == self.energies.shape:
             self.energies, self.tracked = st["energies"], st["tracked"]
+            self.snap_at, self.snapshot = int(st.get("snap_at", 0)), st.get("snapshot")
 
 
-def diagnose_run(sampler, potential, rec: _Recorder, z: Tensor, steps: int) -> Diagnostics:
+def diagnose_run(sampler, potential, rec: _Recorder, z: Tensor, steps: int, groups: int = 1) -> Diagnostics:
     """The convergence checks of a finished run (one extra gradient evaluation, not counted in the budget)."""
     grad = None
     if hasattr(potential, "value_and_grad"):
@@ -307,7 +327,9 @@ def diagnose_run(sampler, potential, rec: _Recorder, z: Tensor, steps: int) -> D
         elif hasattr(potential, "evaluations") and isinstance(potential.evaluations, int):
             potential.evaluations -= z.shape[0]
     energies, tracked = rec.second_half(steps)
-    return diagnose(energies, tracked, z, grad, chains=sampler.particles_are_chains(z.shape[1]), steps=steps)
+    earlier = rec.earlier(steps)
+    return diagnose(energies, tracked, z, grad, chains=sampler.particles_are_chains(z.shape[1]), steps=steps,
+                    earlier=None if earlier is None else earlier.to(z), groups=groups)
 
 
 def _evals(potential) -> int:
