@@ -24,9 +24,16 @@ from .samplers.driver import run
 
 #: ``steps="auto"`` runs at most this many times the preset's steps
 AUTO_STEPS_CAP = 4
-#: under ``noise = "signal"``, the fraction of the run sampled with one noise scale before its shape is
+#: under ``pixel_noise = "signal"``, the fraction of the run sampled with one noise scale before its shape is
 #: estimated (SPOS's annealing is over at 38 % of a run)
 NOISE_BURNIN = 0.4
+
+
+def signal_noise(model) -> bool:
+    """Whether ``model`` samples under signal-dependent noise: ``pixel_noise = "signal"`` with an inferred
+    ``sigma = "auto"`` (a fixed sigma is the user's statement of the noise: it is used as it is)."""
+    return (getattr(model, "pixel_noise", "constant") == "signal" and getattr(model, "sigma", None) == "auto"
+            and callable(getattr(model, "maps", None)))
 
 
 def _phase_path(checkpoint, phase: str):
@@ -120,7 +127,7 @@ def infer(model: "Callable | str | dict", observations: "Observations | ModelDat
     identity = fingerprint(data=data_digest(data, observations_digest), model=model_description(model), seed=seed,
                            start="prior" if z0 is None else digest_tensor(z0))
     noise_level, burnin = None, None
-    if getattr(model, "noise", "constant") == "signal" and callable(getattr(model, "maps", None)):
+    if signal_noise(model):
         # two phases (bayes_brdf.noise_estimate): a burn-in under one noise scale, whose particles' residuals
         # give the noise level's shape; then the rest of the run under the per-pixel scale
         from .noise_estimate import estimate_noise

@@ -1,4 +1,4 @@
-"""Estimating the signal-dependent noise level of a capture before sampling (``noise = "signal"``).
+"""Estimating the signal-dependent noise level of a capture before sampling (``pixel_noise = "signal"``).
 
 The shape of the noise level function ``s(y)^2 = a + b y + c y^2`` (:mod:`bayes_brdf.models.noise`)
 comes from the photos themselves, in two phases of one run (:func:`bayes_brdf.infer`): the burn-in

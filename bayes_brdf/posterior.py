@@ -75,7 +75,7 @@ class Posterior:
     @property
     def noise_level(self):
         """The signal-dependent noise level (:class:`~bayes_brdf.models.noise.NoiseLevel`) the run estimated
-        (``noise = "signal"``), or ``None``: the pixel scale is then ``noise_sigma`` everywhere."""
+        (``pixel_noise = "signal"``), or ``None``: the pixel scale is then ``noise_sigma`` everywhere."""
         d = self.meta.get("noise_level")
         if not isinstance(d, dict):
             return None

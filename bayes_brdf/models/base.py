@@ -11,8 +11,8 @@ function (see docs/models.md, "The model protocol"):
 * ``latent_sites() -> list[str]`` -- the names of its latent sites.
 * ``noise_sigma(data, values) -> [n]`` and ``sigma`` -- its noise level: a fixed number,
   or ``"auto"`` when it is inferred (then the posterior records the inferred value).
-* ``noise`` -- ``"constant"`` (one scale for every pixel) or ``"signal"``: a per-pixel scale that grows
-  with the radiance, its shape estimated from the photos before sampling (:mod:`bayes_brdf.noise_estimate`).
+* ``pixel_noise`` -- ``"signal"`` (under ``sigma = "auto"``: a per-pixel scale that grows with the
+  radiance, its shape estimated after the burn-in, :mod:`bayes_brdf.noise_estimate`) or ``"constant"``.
 * ``initial_values(data, n, seed) -> {site: [n, ...]}`` -- where samplers start, for a
   model whose prior cannot be sampled (a flat prior) or whose prior draws are poor starts
   (the latent decoder projects the photos into its latent space).
@@ -37,7 +37,7 @@ from torch import Tensor
 from ..errors import InputError
 from .data import ModelData
 from .likelihood import KINDS, RenderedImages, check_saturated, check_sigma, observe
-from .noise import check_noise
+from .noise import check_pixel_noise
 
 #: the maps of an SVBRDF, in the order of the map-space summaries
 MAPS = ("albedo", "roughness", "specular", "normal")
@@ -73,14 +73,15 @@ class ObservedModel:
     likelihood: str = "laplace"
     saturated: str = "censored"                        # clipped pixels: "censored" (lower bounds) or "drop"
     backend: str = "auto"
-    noise: str = "constant"                            # "constant" (one scale) or "signal" (grows with radiance)
+    pixel_noise: str = "signal"                        # "signal": under sigma = "auto", a scale that grows with
+    #                                                    the radiance (camera-like); "constant": one scale
 
     kind = "model"
 
     def __post_init__(self):
         check_sigma(self.sigma)
         check_saturated(self.saturated)
-        check_noise(self.noise)
+        check_pixel_noise(self.pixel_noise)
         if self.likelihood not in KINDS:
             raise InputError(f"unknown likelihood '{self.likelihood}'", fix=f"use one of {', '.join(KINDS)}")
 

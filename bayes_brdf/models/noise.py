@@ -27,7 +27,7 @@ from torch import Tensor
 
 from ..errors import InputError
 
-NOISE_KINDS = ("constant", "signal")
+PIXEL_NOISE = ("constant", "signal")
 
 
 @dataclass(frozen=True)
@@ -68,9 +68,9 @@ class NoiseLevel:
             raise InputError(f"not a noise level: {d!r}", fix="a table with a, b, c and y_ref") from None
 
 
-def check_noise(noise) -> None:
-    if noise not in NOISE_KINDS:
-        raise InputError(f"noise must be one of {', '.join(NOISE_KINDS)}, got {noise!r}",
+def check_pixel_noise(kind) -> None:
+    if kind not in PIXEL_NOISE:
+        raise InputError(f"pixel_noise must be one of {', '.join(PIXEL_NOISE)}, got {kind!r}",
                          fix="\"signal\": a noise scale that grows with the radiance (camera-like); "
                              "\"constant\": one scale for every pixel")
 
@@ -95,7 +95,7 @@ def fit_noise_level(signal: Tensor, residual: Tensor, *, kind: str = "laplace", 
     y = signal.detach().to(torch.float64).reshape(-1)
     r = residual.detach().to(torch.float64).reshape(y.shape[0], -1).abs()
     if y.numel() < 10:
-        raise InputError(f"too few pixels ({y.numel()}) to estimate a noise level", fix="use noise = \"constant\"")
+        raise InputError(f"too few pixels ({y.numel()}) to estimate a noise level", fix="use pixel_noise = \"constant\"")
     y = y.clamp_min(0)
     ym = float(y.mean())
     # start: a constant scale (the mean residual), split between the floor and the relative term
@@ -124,7 +124,7 @@ def fit_noise_level(signal: Tensor, residual: Tensor, *, kind: str = "laplace", 
     opt.step(closure)
     a, b, c = (float(v) for v in theta.detach().exp())
     if not all(math.isfinite(v) for v in (a, b, c)):
-        raise InputError("the noise level fit did not converge", fix="use noise = \"constant\"")
+        raise InputError("the noise level fit did not converge", fix="use pixel_noise = \"constant\"")
     # coefficients far below what they could contribute at the data's radiance are zero
     top = a + b * float(y.max()) + c * float(y.max()) ** 2
     a, b, c = (0.0 if v * w < 1e-9 * top else v for v, w in ((a, 1.0), (b, float(y.max())), (c, float(y.max()) ** 2)))

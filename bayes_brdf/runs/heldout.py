@@ -45,14 +45,20 @@ def predict(post, views, images: Tensor, surface, *, sigma: float | None = None)
 
 def fitted_noise(post, obs) -> float:
     """Laplace scale of the MAP's residuals on the fitted photos (mean |R - y| over usable pixels):
-    the noise level the data show, to compare with the model's ``sigma``."""
+    the noise level the data show, to compare with the model's ``sigma``. Under signal-dependent noise
+    (``post.noise_level``) each residual is divided by its pixel's relative scale ``g(R)``, so the
+    number is in the units of ``post.noise_sigma`` (the scale at the reference radiance)."""
     from ..models.data import ModelData
     from ..render.shade import render
 
     d = ModelData.from_observations(obs)
     pred = render(post.maps("map"), obs.views, obs.surface)[0]
     w = d.weight > 0
-    return float((pred - d.images.to(pred)).abs()[w].mean())
+    r = (pred - d.images.to(pred)).abs()
+    level = post.noise_level
+    if level is not None:
+        r = r / level.relative(pred.mean(-1, keepdim=True)).to(r)
+    return float(r[w].mean())
 
 
 def heldout_report(post, obs, out: Path, fitted_sigma: float | None = None) -> dict:

@@ -1,4 +1,4 @@
-"""Signal-dependent noise (noise = "signal"): the level function, the per-pixel likelihood, the two-phase run."""
+"""Signal-dependent noise (pixel_noise = "signal"): the level function, the per-pixel likelihood, the two-phase run."""
 import math
 
 import pytest
@@ -83,15 +83,17 @@ def test_censored_pixels_use_their_scale():
 
 @pytest.mark.slow
 def test_infer_recovers_a_known_signal_dependent_noise_within_ten_percent():
-    obs, clean = noisy_photos(16, 5)
-    post = bb.infer(bb.models.per_texel(16, noise="signal"), obs, steps=400, progress=False)
+    # nine photos: with 4 parameters per texel and 27 values, the level is identified to a few percent
+    # (with 5 photos, 15 values, the inferred overall scale comes out about 11 % high: docs/calibration.md)
+    obs, clean = noisy_photos(16, 9)
+    post = bb.infer(bb.models.per_texel(16), obs, steps=400, progress=False)
     nl = post.noise_level
     assert nl is not None and post.meta["noise_level"] == nl.to_dict()
-    y = clean.mean(-1).flatten()
+    y = clean.mean(-1)[ModelData.from_observations(obs).weight > 0]       # the radiance of the fitted pixels
     q = torch.quantile(y, torch.tensor([0.1, 0.5, 0.9]))
     got = post.noise_sigma * nl.relative(q)
     assert torch.allclose(got, true_scale(q).to(got), rtol=0.10), (got, true_scale(q))
     # the constant model cannot: its one scale is off by more than 10 % at one end or the other
-    const = bb.infer(bb.models.per_texel(16), obs, steps=200, progress=False)
+    const = bb.infer(bb.models.per_texel(16, pixel_noise="constant"), obs, steps=200, progress=False)
     off = (const.noise_sigma / true_scale(q) - 1).abs()
     assert float(off.max()) > 0.25

@@ -9,7 +9,8 @@ import bayes_brdf as bb
 from bayes_brdf.errors import ConvergenceWarning
 from bayes_brdf.potential import FunctionPotential
 from bayes_brdf.samplers import SGLD, make_sampler, run
-from bayes_brdf.samplers.diagnostics import behind, diagnose, ess_bulk, ksd, split_rhat, stein_ratio, stragglers
+from bayes_brdf.samplers.diagnostics import (Diagnostics, behind, ess_bulk, ksd, split_rhat, stability, stein_ratio,
+                                             stragglers)
 
 G = lambda s: torch.Generator().manual_seed(s)  # noqa: E731
 
@@ -54,7 +55,21 @@ def _gauss(dim=10):
     return FunctionPotential(lambda z: 0.5 * ((z / scales) ** 2).sum(1), dim=dim), scales
 
 
-def test_converged_run_passes_and_an_underrun_is_flagged():
+def test_stability_of_independent_and_moving_ensembles():
+    g = G(5)
+    a, b = torch.randn(20, 4000, generator=g), torch.randn(20, 4000, generator=g)
+    shift, moved, change, se = stability(a, b)
+    assert shift < 0.01 and abs(change) < 3 * se
+    shift, _, change, _ = stability(a + 1.0, b)            # the mean moved by 1 std: 4.5 Monte Carlo errors
+    assert shift > 0.5
+    _, _, change, _ = stability(0.8 * a, b)                 # the spread shrank by 20 %
+    assert change == pytest.approx(math.log(0.8), abs=0.02)
+    # groups are compared group by group: two groups with different means are not a "move"
+    two = torch.cat([a[:10], a[10:] + 5.0])
+    assert stability(two, two.clone(), groups=2)[0] == 0.0
+
+
+def test_converged_run_passes_an_underrun_fails_and_its_remedy_passes():
     pot, scales = _gauss()
     s = SGLD(step_size=0.02)
     long = run(s, pot, particles=20, steps=3000, seed=0, progress=False)
@@ -62,10 +77,31 @@ def test_converged_run_passes_and_an_underrun_is_flagged():
     assert long.diagnostics.message() == ""
     short = run(s, pot, particles=20, steps=40, seed=0, progress=False)
     d = short.diagnostics
-    assert not d.converged and "rhat" in d.failed
-    msg = d.message()
+    assert not d.converged and {"std_change", "energy_spread"} & set(d.failed)
+    assert all(d.checks[k]["ok"] is None for k in ("rhat", "ess", "energy_drift"))   # reported, never failing
+    msg = d.message(cli=True)
     assert msg.startswith("not converged: ") and "--steps 80" in msg and "\n" not in msg
-    assert set(d.to_dict()) == {"converged", "failed", "steps", "checks"}
+    assert d.message() .endswith("rerun with steps=80")
+    assert set(d.to_dict()) == {"converged", "failed", "steps", "dim", "checks"}
+    # the remedy, followed as often as it says so, passes
+    steps = 40
+    while not d.converged:
+        steps = int(d.message().rsplit("steps=", 1)[1])
+        assert steps <= 640
+        d = run(s, pot, particles=20, steps=steps, seed=0, progress=False).diagnostics
+    assert Diagnostics.from_dict(d.to_dict()).converged
+
+
+def test_a_settled_low_dimensional_ensemble_far_above_the_posterior_is_sent_to_emcee():
+    checks = {"mean_shift": {"value": 0.0, "threshold": 0.05, "ok": True},
+              "energy_spread": {"value": 300.0, "threshold": 10.0, "ok": False}}
+    assert "emcee" in Diagnostics(checks, 2000, dim=2).message()
+    drifting = {**checks, "energy_drift": {"value": 9.0, "threshold": 5.0, "ok": None}}
+    assert "steps=4000" in Diagnostics(drifting, 2000, dim=2).message()
+    stein = {"stein_ratio": {"value": 0.2, "threshold": [0.5, 2.0], "ok": False}}
+    assert "steps=4000" in Diagnostics(stein, 2000, dim=5000).message()
+    moving = {**checks, "std_change": {"value": 0.3, "threshold": 0.1, "ok": False}}
+    assert "steps=4000" in Diagnostics(moving, 2000, dim=2).message()
 
 
 def test_default_spos_diagnostics_pass_on_a_per_texel_truth_problem():
@@ -77,7 +113,8 @@ def test_default_spos_diagnostics_pass_on_a_per_texel_truth_problem():
         post = bb.infer(prob.model, obs, seed=0, progress=False)
     d = post.diagnostics
     assert d["converged"], d
-    assert {"rhat", "ess", "energy_drift", "behind", "stein_ratio", "ksd"} <= set(d["checks"])
+    assert {"rhat", "ess", "energy_drift", "behind", "stein_ratio", "mean_shift", "std_change"} <= set(d["checks"])
+    assert "ksd" not in d["checks"]
     with pytest.warns(ConvergenceWarning, match=r"not converged: .*rerun with steps=60"):
         bb.infer(prob.model, obs, seed=0, steps=30, progress=False)
 
