@@ -29,11 +29,12 @@ AUTO_STEPS_CAP = 4
 NOISE_BURNIN = 0.4
 
 
-def signal_noise(model) -> bool:
+def signal_noise(model, sampler=None) -> bool:
     """Whether ``model`` samples under signal-dependent noise: ``pixel_noise = "signal"`` with an inferred
-    ``sigma = "auto"`` (a fixed sigma is the user's statement of the noise: it is used as it is)."""
+    ``sigma = "auto"`` (a fixed sigma is the user's statement of the noise: it is used as it is), and a
+    sampler whose run can be cut in two and continued exactly (not NUTS: one chain with its own warm-up)."""
     return (getattr(model, "pixel_noise", "constant") == "signal" and getattr(model, "sigma", None) == "auto"
-            and callable(getattr(model, "maps", None)))
+            and callable(getattr(model, "maps", None)) and getattr(sampler, "exact_resume", True))
 
 
 def _phase_path(checkpoint, phase: str):
@@ -127,14 +128,14 @@ def infer(model: "Callable | str | dict", observations: "Observations | ModelDat
     identity = fingerprint(data=data_digest(data, observations_digest), model=model_description(model), seed=seed,
                            start="prior" if z0 is None else digest_tensor(z0))
     noise_level, burnin = None, None
-    if signal_noise(model):
+    if signal_noise(model, smp):
         # two phases (bayes_brdf.noise_estimate): a burn-in under one noise scale, whose particles' residuals
         # give the noise level's shape; then the rest of the run under the per-pixel scale
         from .noise_estimate import estimate_noise
         steps1 = max(1, round(NOISE_BURNIN * kw["steps"]))
         kw1 = {**kw, "steps": steps1, "max_steps": None}
         burnin = run(smp, pot, seed=seed, checkpoint=_phase_path(checkpoint, "burnin"), progress=progress,
-                     z0=z0, identity={**identity, "phase": "burnin"}, **kw1)
+                     z0=z0, identity={**identity, "phase": "burnin"}, span=(0, kw["steps"]), **kw1)
         data, noise_level = estimate_noise(model, data, pot.to_constrained(burnin.z))
         pot = Potential(model, (data,))
         z0 = burnin.z
@@ -145,8 +146,10 @@ def infer(model: "Callable | str | dict", observations: "Observations | ModelDat
             smp = type(smp).from_params({**smp.params(), "anneal": False})
         identity = {**identity, "phase": "signal noise", "noise_level": noise_level.to_dict()}
     res = run(smp, pot, seed=seed, checkpoint=checkpoint, progress=progress, callbacks=callbacks, z0=z0,
-              identity=identity, **kw)
+              identity=identity, span=None if burnin is None else (burnin.steps, burnin.steps + kw["steps"]), **kw)
     if burnin is not None:
+        # resumed in the second phase: from the burn-in's steps plus its own; else from where the burn-in did
+        res.resumed_from = burnin.steps + res.resumed_from if res.resumed_from else burnin.resumed_from
         res.steps += burnin.steps
         res.seconds += burnin.seconds
         res.evaluations += burnin.evaluations

@@ -119,8 +119,12 @@ def _load(path: Path, signature: str) -> dict:
 def run(sampler, potential, *, particles: int = 20, steps: int = 1000, seed: int = 0, z0: Tensor | None = None,
         checkpoint=None, checkpoint_every: int = 100, callbacks=(), progress: bool = True,
         minibatch_views: int | None = None, minibatch_pixels: float | None = None, groups: int = 1,
-        init_margin: float = 0.0, max_steps: int | None = None, identity: dict | None = None) -> RunResult:
+        init_margin: float = 0.0, max_steps: int | None = None, identity: dict | None = None,
+        span: tuple[int, int] | None = None) -> RunResult:
     """Run ``sampler`` on ``potential`` for ``steps`` steps; see the module docstring.
+
+    ``span = (offset, total)``: this run is steps ``offset ..`` of a longer one of ``total`` steps (a
+    phase of :func:`bayes_brdf.infer`); only the progress bar and the resume message count that way.
 
     ``callbacks`` are called as ``cb(t, state, info)`` after every step.
     ``minibatch_views`` / ``minibatch_pixels`` make every step use a random
@@ -151,13 +155,14 @@ def run(sampler, potential, *, particles: int = 20, steps: int = 1000, seed: int
         return _run(sampler, potential, particles=particles, steps=steps, seed=seed, z0=z0, checkpoint=checkpoint,
                     checkpoint_every=checkpoint_every, callbacks=callbacks, progress=progress,
                     minibatch_views=minibatch_views, minibatch_pixels=minibatch_pixels, groups=groups,
-                    init_margin=init_margin, max_steps=max_steps, identity=identity)
+                    init_margin=init_margin, max_steps=max_steps, identity=identity, span=span)
 
 
 def _run(sampler, potential, *, particles: int = 20, steps: int = 1000, seed: int = 0, z0: Tensor | None = None,
         checkpoint=None, checkpoint_every: int = 100, callbacks=(), progress: bool = True,
         minibatch_views: int | None = None, minibatch_pixels: float | None = None, groups: int = 1,
-        init_margin: float = 0.0, max_steps: int | None = None, identity: dict | None = None) -> RunResult:
+        init_margin: float = 0.0, max_steps: int | None = None, identity: dict | None = None,
+        span: tuple[int, int] | None = None) -> RunResult:
     if not isinstance(steps, int) or steps < 1:
         raise InputError(f"steps must be a positive integer, got {steps!r}")
     if not isinstance(particles, int) or particles < 1:
@@ -197,7 +202,8 @@ def _run(sampler, potential, *, particles: int = 20, steps: int = 1000, seed: in
         horizon = int(ck.get("horizon", steps))
         rec.load(ck.get("record"))
         rec.aim(horizon)
-        log.info("resuming from step %d of %d (checkpoint %s)", start, horizon, ck_path)
+        off, of = span if span is not None else (0, horizon)
+        log.info("resuming from step %d of %d (checkpoint %s)", off + start, of, ck_path)
 
     def save(t, rngs=None):
         if ck_path is not None:
@@ -258,7 +264,8 @@ def _run(sampler, potential, *, particles: int = 20, steps: int = 1000, seed: in
     except KeyboardInterrupt:
         save(done, snap)
         bar.close()
-        raise Interrupted(done, horizon, ck_path) from None
+        off, of = span if span is not None else (0, horizon)
+        raise Interrupted(off + done, of if span is not None else horizon, ck_path) from None
     bar.close()
     save(done)
     evals = evals0 + committed_evals
