@@ -110,7 +110,10 @@ class Diagnostics:
     @property
     def settled(self) -> bool:
         """No check says the run is still moving (see :meth:`remedy`)."""
-        if {"mean_shift", "std_change", "behind"} & set(self.failed):
+        failed = set(self.failed)
+        if {"mean_shift", "std_change"} & failed:
+            return False
+        if "behind" in failed and "energy_spread" not in failed:   # in a few dimensions, one symptom of the spread
             return False
         c = self.checks
         drift = c.get("energy_drift", {}).get("value")
@@ -128,8 +131,9 @@ class Diagnostics:
         docs/calibration.md).
         """
         if self.settled and "energy_spread" in self.failed:
-            return ("the particles do not have the posterior's shape (a posterior this narrow): use the emcee "
-                    "sampler " + ("(--sampler emcee --overwrite)" if cli else "(sampler=\"emcee\")"))
+            return ("the particles sit far above the posterior's energies (a posterior narrower than the sampler's "
+                    "steps; more steps do not help): use the emcee sampler "
+                    + ("(--sampler emcee --overwrite)" if cli else "(sampler=\"emcee\")"))
         n = 2 * self.steps
         return f"rerun with --steps {n} --overwrite (or a new --out)" if cli else f"rerun with steps={n}"
 
