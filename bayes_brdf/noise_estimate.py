@@ -37,7 +37,7 @@ def estimate_noise(model, data: ModelData, values: dict) -> tuple[ModelData, Noi
         >>> y = y + 0.01 * torch.randn(y.shape, generator=torch.Generator().manual_seed(0))
         >>> d = ModelData.from_observations(bb.Observations(views, y, PlanarSample(2.0)))
         >>> m = bb.models.homogeneous(albedo="gray")
-        >>> d2, nl = estimate_noise(m, d, {"albedo": torch.full((4,), 0.5), "roughness": torch.full((4,), 0.3)})
+        >>> d2, nl = estimate_noise(m, d, {"albedo": torch.full((4, 1), 0.5), "roughness": torch.full((4, 1), 0.3)})
         >>> d2.noise.shape == d.weight.shape and nl.y_ref > 0
         True
     """

@@ -284,7 +284,7 @@ def stability(z: Tensor, earlier: Tensor, groups: int = 1) -> tuple[float, int, 
         >>> shift, moved, change, se = stability(a, b)
         >>> shift < 0.02 and abs(change) < 3 * se < 0.05
         True
-        >>> shift, moved, change, se = stability(0.5 * a + 1, b)
+        >>> shift, moved, change, se = stability(0.5 * a + 2, b)
         >>> shift > 0.9 and round(change, 1)
         -0.7
     """
