@@ -127,7 +127,7 @@ def infer(model: "Callable | str | dict", observations: "Observations | ModelDat
         kw["particles"] = z0.shape[0]
     identity = fingerprint(data=data_digest(data, observations_digest), model=model_description(model), seed=seed,
                            start="prior" if z0 is None else digest_tensor(z0))
-    noise_level, burnin = None, None
+    noise_level, burnin, params = None, None, smp.params()
     if signal_noise(model, smp):
         # two phases (bayes_brdf.noise_estimate): a burn-in under one noise scale, whose particles' residuals
         # give the noise level's shape; then the rest of the run under the per-pixel scale
@@ -157,7 +157,7 @@ def infer(model: "Callable | str | dict", observations: "Observations | ModelDat
             res.diagnostics.steps = res.steps
     with torch.no_grad():
         energies = pot.energy(res.z, jacobian=False)
-    meta = {"sampler": smp.name, "params": smp.params(), "run": vars(cfg), "seed": seed,
+    meta = {"sampler": smp.name, "params": params, "run": vars(cfg), "seed": seed,
             "evaluations": res.evaluations, "steps": res.steps, "identity": identity,
             "model": describe(model),
             "observations": observations.meta if isinstance(observations, Observations) else {},
