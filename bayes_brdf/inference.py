@@ -57,6 +57,45 @@ def resolve_model(model):
     return model
 
 
+def _sample(smp, pot, model, data, kw: dict, *, seed, checkpoint, progress, callbacks, z0, identity):
+    """The run: one phase, or two under signal-dependent noise (:func:`signal_noise`).
+
+    Two phases (:mod:`bayes_brdf.noise_estimate`): a burn-in of :data:`NOISE_BURNIN` of the steps under one
+    noise scale, whose particles' residuals give the noise level's shape; then the rest of the run under the
+    per-pixel scale, from where the burn-in ended, without a second annealing. The burn-in has its own
+    checkpoint; progress, resume and Ctrl-C speak of the whole run. Returns ``(result, potential, data,
+    noise level or None, identity)``, the last three as the second phase used them.
+    """
+    kw = dict(kw)
+    if not signal_noise(model, smp):
+        res = run(smp, pot, seed=seed, checkpoint=checkpoint, progress=progress, callbacks=callbacks, z0=z0,
+                  identity=identity, **kw)
+        return res, pot, data, None, identity
+    from .noise_estimate import estimate_noise
+    steps1 = max(1, round(NOISE_BURNIN * kw["steps"]))
+    kw1 = {**kw, "steps": steps1, "max_steps": None}
+    burnin = run(smp, pot, seed=seed, checkpoint=_phase_path(checkpoint, "burnin"), progress=progress,
+                 z0=z0, identity={**identity, "phase": "burnin"}, span=(0, kw["steps"]), **kw1)
+    data, noise_level = estimate_noise(model, data, pot.to_constrained(burnin.z))
+    pot = Potential(model, (data,))
+    kw["steps"] = max(1, kw["steps"] - steps1)
+    if kw.get("max_steps"):
+        kw["max_steps"] = max(kw["steps"], kw["max_steps"] - steps1)
+    if "anneal" in smp.params():          # the particles are past the burn-in: no second annealing
+        smp = type(smp).from_params({**smp.params(), "anneal": False})
+    identity = {**identity, "phase": "signal noise", "noise_level": noise_level.to_dict()}
+    res = run(smp, pot, seed=seed, checkpoint=checkpoint, progress=progress, callbacks=callbacks, z0=burnin.z,
+              identity=identity, span=(burnin.steps, burnin.steps + kw["steps"]), **kw)
+    # resumed in the second phase: from the burn-in's steps plus its own; else from where the burn-in did
+    res.resumed_from = burnin.steps + res.resumed_from if res.resumed_from else burnin.resumed_from
+    res.steps += burnin.steps
+    res.seconds += burnin.seconds
+    res.evaluations += burnin.evaluations
+    if res.diagnostics is not None:        # the remedy speaks of the whole run
+        res.diagnostics.steps = res.steps
+    return res, pot, data, noise_level, identity
+
+
 def infer(model: "Callable | str | dict", observations: "Observations | ModelData", sampler: "str | dict | object" = "spos",
           *, seed: int = 0, particles: int | None = None, steps: "int | str | None" = None,
           params: dict | None = None,
@@ -127,34 +166,9 @@ def infer(model: "Callable | str | dict", observations: "Observations | ModelDat
         kw["particles"] = z0.shape[0]
     identity = fingerprint(data=data_digest(data, observations_digest), model=model_description(model), seed=seed,
                            start="prior" if z0 is None else digest_tensor(z0))
-    noise_level, burnin, params = None, None, smp.params()
-    if signal_noise(model, smp):
-        # two phases (bayes_brdf.noise_estimate): a burn-in under one noise scale, whose particles' residuals
-        # give the noise level's shape; then the rest of the run under the per-pixel scale
-        from .noise_estimate import estimate_noise
-        steps1 = max(1, round(NOISE_BURNIN * kw["steps"]))
-        kw1 = {**kw, "steps": steps1, "max_steps": None}
-        burnin = run(smp, pot, seed=seed, checkpoint=_phase_path(checkpoint, "burnin"), progress=progress,
-                     z0=z0, identity={**identity, "phase": "burnin"}, span=(0, kw["steps"]), **kw1)
-        data, noise_level = estimate_noise(model, data, pot.to_constrained(burnin.z))
-        pot = Potential(model, (data,))
-        z0 = burnin.z
-        kw["steps"] = max(1, kw["steps"] - steps1)
-        if kw.get("max_steps"):
-            kw["max_steps"] = max(kw["steps"], kw["max_steps"] - steps1)
-        if "anneal" in smp.params():          # the particles are past the burn-in: no second annealing
-            smp = type(smp).from_params({**smp.params(), "anneal": False})
-        identity = {**identity, "phase": "signal noise", "noise_level": noise_level.to_dict()}
-    res = run(smp, pot, seed=seed, checkpoint=checkpoint, progress=progress, callbacks=callbacks, z0=z0,
-              identity=identity, span=None if burnin is None else (burnin.steps, burnin.steps + kw["steps"]), **kw)
-    if burnin is not None:
-        # resumed in the second phase: from the burn-in's steps plus its own; else from where the burn-in did
-        res.resumed_from = burnin.steps + res.resumed_from if res.resumed_from else burnin.resumed_from
-        res.steps += burnin.steps
-        res.seconds += burnin.seconds
-        res.evaluations += burnin.evaluations
-        if res.diagnostics is not None:        # the remedy speaks of the whole run
-            res.diagnostics.steps = res.steps
+    params = smp.params()
+    res, pot, data, noise_level, identity = _sample(smp, pot, model, data, kw, seed=seed, checkpoint=checkpoint,
+                                                    progress=progress, callbacks=callbacks, z0=z0, identity=identity)
     with torch.no_grad():
         energies = pot.energy(res.z, jacobian=False)
     meta = {"sampler": smp.name, "params": params, "run": vars(cfg), "seed": seed,
