@@ -29,6 +29,7 @@ SETUPS = {
     "0/20/40 s.02":   Table1Setup(observations=[20.0, 40.0], sigma=0.02),
     "0/40 r.15":      Table1Setup(observations=[40.0], albedo=0.7, roughness=0.15),
     "0/15/30/45 a.1 r.4 s.01": Table1Setup(observations=[15.0, 30.0, 45.0], albedo=0.1, roughness=0.4),
+    "0/2 a.4 r.3":    Table1Setup(observations=[2.0], albedo=0.4, roughness=0.3),
 }
 
 

@@ -31,6 +31,19 @@ def test_problem_is_genuinely_ambiguous_and_quadrature_converged():
     assert float(u) == pytest.approx(3 * math.log(2 * 0.01) + math.log(0.95), rel=1e-6)  # y stored as float32
 
 
+def test_quadrature_resolves_a_posterior_narrower_than_a_cell():
+    # two views, a sharp highlight: the roughness std (~1e-4) is a tenth of a cell of the prior's box; the refined
+    # grid puts the mass over many cells, and a grid half as fine agrees with it
+    setup = Table1Setup(observations=[40.0], albedo=0.7, roughness=0.15)
+    coarse, fine = quadrature(Table1Setup(**{**setup.__dict__, "grid": 500})), quadrature(setup)
+    std = fine["var"].sqrt()
+    assert float(std[1]) > 10 * float(fine["cell"][1]), (std, fine["cell"])
+    assert int((fine["weights"] > 1e-4 * fine["weights"].max()).sum()) > 1000
+    torch.testing.assert_close(coarse["mean"], fine["mean"], rtol=1e-3, atol=0)
+    torch.testing.assert_close(coarse["var"], fine["var"], rtol=2e-2, atol=0)
+    assert float(fine["mean"][1]) == pytest.approx(0.15, abs=3 * float(std[1]))
+
+
 @pytest.mark.slow
 def test_table1_ranking_and_floor():
     table = compare(Table1Setup(), runs=20, particles=16, steps={"emcee": 500})   # emcee: ~5 s a run
