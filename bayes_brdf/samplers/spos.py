@@ -39,6 +39,17 @@ unconstrained units, which must then sit below the tightest posterior std).
 part balances the likelihood, the drift's rms falls towards ``|grad U| / beta`` and an unbounded scale
 grows by up to ``beta`` (200 in 2-D), and the ensemble over-contracts. ``adam_eps = "auto"`` is ``2 / D``:
 a bound of 1 in 2-D, none to speak of in high dimension, where ``beta = 1`` and nothing grows.
+
+``precond_scope`` says whose gradients set Adam's scale. ``"auto"`` (the preset) keeps one second moment per
+particle in at most 16 dimensions (the per-chain RMSprop of pSGLD, Li et al. 2016) and one per group beyond.
+A shared scale is set by the group's stiffest particles: on a narrow ridge (two nearly equal views, a sharp
+highlight) the particles that straddle it have gradients a thousand times those of a particle out on a flat
+stretch of the ridge, which then moves a thousand times too slowly and is still there when the run ends
+(docs/calibration.md: two such setups were 133x and 383x the i.i.d. floor with a shared scale, and are within
+2x of it with one per particle). A positive
+per-particle scale leaves the Stein part's fixed point where it is, and the Langevin part keeps its drift and
+noise consistent particle by particle. In high dimension the shared scale stays: it averages 20 particles'
+gradients, and the per-texel calibration was measured with it.
 """
 from __future__ import annotations
 
@@ -51,6 +62,7 @@ from torch import Tensor
 
 from ..errors import InputError
 from .base import Info, Sampler
+from .diagnostics import LOW_DIM
 from .config import Configurable
 from .kernels import kernel_apply, rbf_median
 from .numerics import Preconditioner, anneal, precond_init, precond_update
@@ -78,6 +90,9 @@ class SPOS(Configurable, Sampler):
     step_units: str = "parameter"    # "parameter": lambda in unconstrained units; "spread": a fraction of the
     #                                  particles' per-coordinate spread (std within the group)
     min_spread: float = 1e-3         # "spread": floor of the spread (a collapsed or one-particle group)
+    precond_scope: str = "group"     # Adam's second moment: shared by a group's particles ("group"), one per
+    #                                  "particle" (pSGLD's per-chain RMSprop), or "auto": per particle in at most
+    #                                  LOW_DIM dimensions (see the module docstring)
 
     name = "spos"
     State = SPOSState
@@ -86,6 +101,7 @@ class SPOS(Configurable, Sampler):
         self._positive("step_size", "anneal_delta", "beta_low_dim")
         self._choice("preconditioner", ("adam", "none"))
         self._choice("step_units", ("parameter", "spread"))
+        self._choice("precond_scope", ("group", "particle", "auto"))
 
         self._positive("min_spread")
         for k in ("beta", "adam_eps"):   # the dimension-aware ones: a number, or "auto" (beta_for, eps_for)
@@ -103,12 +119,16 @@ class SPOS(Configurable, Sampler):
     def eps_for(self, dim: int) -> float:
         return 2.0 / dim if self.adam_eps == "auto" else float(self.adam_eps)
 
+    def per_particle(self, dim: int) -> bool:
+        """Whether each particle keeps its own Adam second moment (``precond_scope``)."""
+        return self.precond_scope == "particle" or (self.precond_scope == "auto" and dim <= LOW_DIM)
+
     def particles_are_chains(self, dim: int) -> bool:
         # with a large beta (low dimension) the Stein part dominates: particles settle like SVGD's
         return self.beta_for(dim) <= 5
 
     def init(self, z0, potential, rng, *, steps, groups=1):
-        p0 = precond_init(groups, z0.shape[1], z0)
+        p0 = precond_init(z0.shape[0] if self.per_particle(z0.shape[1]) else groups, z0.shape[1], z0)
         return SPOSState(z0.clone(), p0, p0, steps, groups)
 
     def step(self, state, t, potential, rng):
@@ -124,9 +144,11 @@ class SPOS(Configurable, Sampler):
         if self.preconditioner == "adam" and gam < 0.99:
             # un-annealed update, for the noise's scale (see the module docstring)
             pn, G1 = precond_update(pn, (rep - kg).div_(n).sub_(grad, alpha=1 / beta), self.adam_beta2, eps)
+            G1 = G1.view(groups, -1, D)                  # [G, 1, D], or [G, n, D] per particle
         drift = rep.sub_(kg, alpha=gam).div_(n).sub_(grad, alpha=gam / beta)    # in place: rep is ours
         if self.preconditioner == "adam":
             pc, G = precond_update(pc, drift, self.adam_beta2, eps)
+            G = G.view(groups, -1, D)
             Gn = torch.minimum(G, G1) if gam < 0.99 else G
         else:
             G = Gn = torch.ones((), dtype=z.dtype, device=z.device)
