@@ -32,9 +32,10 @@ NOISE_BURNIN = 0.4
 def signal_noise(model, sampler=None) -> bool:
     """Whether ``model`` samples under signal-dependent noise: ``pixel_noise = "signal"`` with an inferred
     ``sigma = "auto"`` (a fixed sigma is the user's statement of the noise: it is used as it is), and a
-    sampler whose run can be cut in two and continued exactly (not NUTS: one chain with its own warm-up)."""
+    sampler whose run can be cut in two, the second part started from the first's particles
+    (``continues_from_particles``; not NUTS, whose chain warms up again)."""
     return (getattr(model, "pixel_noise", "constant") == "signal" and getattr(model, "sigma", None) == "auto"
-            and callable(getattr(model, "maps", None)) and getattr(sampler, "exact_resume", True))
+            and callable(getattr(model, "maps", None)) and getattr(sampler, "continues_from_particles", True))
 
 
 def _phase_path(checkpoint, phase: str):

@@ -97,7 +97,7 @@ class Sampler(Protocol):
     """The sampler contract (see the module docstring).
 
     Subclass it to inherit the defaults below (``exact_resume``, ``uses_gradients``,
-    ``supports_groups``, :meth:`particles`, :meth:`particles_are_chains`); any object with these
+    ``supports_groups``, ``continues_from_particles``, :meth:`particles`, :meth:`particles_are_chains`); any object with these
     members works with the driver. The built-in samplers are dataclasses that also derive from
     :class:`~bayes_brdf.samplers.config.Configurable` (``from_params``, ``params``, ``validate``).
     """
@@ -110,6 +110,10 @@ class Sampler(Protocol):
     uses_gradients: bool = True
     #: whether the sampler can run ``groups`` independent ensembles in one call
     supports_groups: bool = True
+    #: whether a run started from another run's particles (``z0``) carries that run on: its state is the
+    #: particles (and what ``init`` rebuilds from them), not a chain's adaptation (NUTS warms up anew).
+    #: ``bb.infer`` cuts a signal-dependent-noise run in two phases only for such samplers.
+    continues_from_particles: bool = True
 
     def params(self) -> dict:
         """The hyper-parameters, ``{name: value}`` (part of a checkpoint's signature)."""

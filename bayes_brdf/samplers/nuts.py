@@ -48,6 +48,7 @@ class NUTS(Configurable, Sampler):
     supports_groups = False
     State = NUTSState
     exact_resume = False
+    continues_from_particles = False     # a new run from z0 warms up its step size and mass matrix again
 
     def validate(self):
         self._positive("step_size", "thin", "max_tree_depth")
