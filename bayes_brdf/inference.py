@@ -62,29 +62,31 @@ def _sample(smp, pot, model, data, kw: dict, *, seed, checkpoint, progress, call
     """The run: one phase, or two under signal-dependent noise (:func:`signal_noise`).
 
     Two phases (:mod:`bayes_brdf.noise_estimate`): a burn-in of :data:`NOISE_BURNIN` of the steps under one
-    noise scale, whose particles' residuals give the noise level's shape; then the rest of the run under the
+    noise scale, whose particles' renders give the photos' gains (``view_gain = "estimated"``) and whose
+    residuals give the noise level's shape; then the rest of the run on the corrected photos under the
     per-pixel scale, from where the burn-in ended, without a second annealing. The burn-in has its own
     checkpoint; progress, resume and Ctrl-C speak of the whole run. Returns ``(result, potential, data,
-    noise level or None, identity)``, the last three as the second phase used them.
+    noise level or None, view gains or None, identity)``, the last four as the second phase used them.
     """
     kw = dict(kw)
     if not signal_noise(model, smp):
         res = run(smp, pot, seed=seed, checkpoint=checkpoint, progress=progress, callbacks=callbacks, z0=z0,
                   identity=identity, **kw)
-        return res, pot, data, None, identity
+        return res, pot, data, None, None, identity
     from .noise_estimate import estimate_noise
     steps1 = max(1, round(NOISE_BURNIN * kw["steps"]))
     kw1 = {**kw, "steps": steps1, "max_steps": None}
     burnin = run(smp, pot, seed=seed, checkpoint=_phase_path(checkpoint, "burnin"), progress=progress,
                  z0=z0, identity={**identity, "phase": "burnin"}, span=(0, kw["steps"]), **kw1)
-    data, noise_level = estimate_noise(model, data, pot.to_constrained(burnin.z))
+    data, noise_level, gains = estimate_noise(model, data, pot.to_constrained(burnin.z))
     pot = Potential(model, (data,))
     kw["steps"] = max(1, kw["steps"] - steps1)
     if kw.get("max_steps"):
         kw["max_steps"] = max(kw["steps"], kw["max_steps"] - steps1)
     if "anneal" in smp.params():          # the particles are past the burn-in: no second annealing
         smp = type(smp).from_params({**smp.params(), "anneal": False})
-    identity = {**identity, "phase": "signal noise", "noise_level": noise_level.to_dict()}
+    identity = {**identity, "phase": "signal noise", "noise_level": noise_level.to_dict(),
+                **({"view_gains": gains.to_dict()} if gains is not None else {})}
     res = run(smp, pot, seed=seed, checkpoint=checkpoint, progress=progress, callbacks=callbacks, z0=burnin.z,
               identity=identity, span=(burnin.steps, burnin.steps + kw["steps"]), **kw)
     # resumed in the second phase: from the burn-in's steps plus its own; else from where the burn-in did
@@ -94,7 +96,7 @@ def _sample(smp, pot, model, data, kw: dict, *, seed, checkpoint, progress, call
     res.evaluations += burnin.evaluations
     if res.diagnostics is not None:        # the remedy speaks of the whole run
         res.diagnostics.steps = res.steps
-    return res, pot, data, noise_level, identity
+    return res, pot, data, noise_level, gains, identity
 
 
 def infer(model: "Callable | str | dict", observations: "Observations | ModelData", sampler: "str | dict | object" = "spos",
@@ -168,7 +170,7 @@ def infer(model: "Callable | str | dict", observations: "Observations | ModelDat
     identity = fingerprint(data=data_digest(data, observations_digest), model=model_description(model), seed=seed,
                            start="prior" if z0 is None else digest_tensor(z0))
     params = smp.params()
-    res, pot, data, noise_level, identity = _sample(smp, pot, model, data, kw, seed=seed, checkpoint=checkpoint,
+    res, pot, data, noise_level, gains, identity = _sample(smp, pot, model, data, kw, seed=seed, checkpoint=checkpoint,
                                                     progress=progress, callbacks=callbacks, z0=z0, identity=identity)
     with torch.no_grad():
         energies = pot.energy(res.z, jacobian=False)
@@ -183,6 +185,8 @@ def infer(model: "Callable | str | dict", observations: "Observations | ModelDat
         meta["noise_sigma"] = float(s.mean())
     if noise_level is not None:
         meta["noise_level"] = noise_level.to_dict()
+    if gains is not None:
+        meta["view_gains"] = gains.to_dict()
     post = Posterior(pot.to_constrained(res.z), energies, z=res.z, meta=meta, potential=pot, model=model,
                      log={"seconds": res.seconds, "resumed_from": res.resumed_from, "steps": res.steps},
                      surface=data.observations.surface)

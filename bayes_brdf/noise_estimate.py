@@ -7,18 +7,34 @@ samples with one noise scale for every pixel; its particles' residuals on the fi
 pixel, ``g = s(y) / s(y_ref)`` at the particles' mean render ``y``. Sampling still infers (integrates
 out) the one overall scale ``sigma``, so only the shape is fixed here. The estimate is deterministic
 given the data, the model and the seed, and is recorded in the posterior (``meta["noise_level"]``).
+
+Under ``view_gain = "estimated"`` (:mod:`bayes_brdf.models.gains`) the same particles first give each
+photo's overall gain; the photos are divided by their gains before the noise level is fitted to their
+residuals, and the rest of the run samples the corrected photos (``meta["view_gains"]``).
 """
 from __future__ import annotations
 
 import torch
 
+from typing import NamedTuple
+
 from .models.data import ModelData
+from .models.gains import ViewGains, estimate_gains
 from .models.noise import NoiseLevel, fit_noise_level
 from .render.shade import shade
 
 
-def estimate_noise(model, data: ModelData, values: dict) -> tuple[ModelData, NoiseLevel]:
-    """``(data with per-pixel relative noise scales, the fitted noise level)`` from posterior draws.
+class NoiseEstimate(NamedTuple):
+    """What :func:`estimate_noise` found: the data to sample on, the noise level, the views' gains (or ``None``)."""
+
+    data: ModelData
+    level: NoiseLevel
+    gains: ViewGains | None
+
+
+def estimate_noise(model, data: ModelData, values: dict) -> NoiseEstimate:
+    """The data with per-pixel relative noise scales (and photos divided by their gains), the fitted noise
+    level and the views' gains, from posterior draws.
 
     ``values`` are site values ``{site: [n, ...]}`` of ``n`` particles that sample the posterior under one
     noise scale (the end of the burn-in). Every particle's residuals ``photo - R(x_i)`` on every usable
@@ -37,14 +53,20 @@ def estimate_noise(model, data: ModelData, values: dict) -> tuple[ModelData, Noi
         >>> y = y + 0.01 * torch.randn(y.shape, generator=torch.Generator().manual_seed(0))
         >>> d = ModelData.from_observations(bb.Observations(views, y, PlanarSample(2.0)))
         >>> m = bb.models.homogeneous(albedo="gray")
-        >>> d2, nl = estimate_noise(m, d, {"albedo": torch.full((4, 1), 0.5), "roughness": torch.full((4, 1), 0.3)})
-        >>> d2.noise.shape == d.weight.shape and nl.y_ref > 0
-        True
+        >>> d2, nl, gains = estimate_noise(m, d, {"albedo": torch.full((4, 1), 0.5),
+        ...                                       "roughness": torch.full((4, 1), 0.3)})
+        >>> d2.noise.shape == d.weight.shape and nl.y_ref > 0, gains is None   # view_gain = "none"
+        (True, True)
     """
     with torch.no_grad():
         r = shade(model.maps(values), data.gbuffer, backend=getattr(model, "backend", "auto"))   # [n, V, H, W, 3]
         w = data.weight > 0
         signal = r.mean(-1)                                                                     # [n, V, H, W]
+        gains = None
+        if getattr(model, "view_gain", "none") == "estimated":
+            gains = estimate_gains(signal.mean(0), data.images, data.weight)
+            if gains is not None:
+                data = data.with_gains(gains.gains())
         level = fit_noise_level(signal[:, w].reshape(-1), (data.images[None] - r)[:, w].reshape(-1, 3),
                                 kind=getattr(model, "likelihood", "laplace"))
         rel = level.relative(signal.mean(0)).to(data.dtype)
@@ -52,4 +74,4 @@ def estimate_noise(model, data: ModelData, values: dict) -> tuple[ModelData, Noi
         cens = None
         if data.censored is not None:
             cens = level.relative(data.censored.level.mean(-1)).to(data.dtype)
-    return data.with_noise(rel, cens), level
+    return NoiseEstimate(data.with_noise(rel, cens), level, gains)

@@ -83,6 +83,16 @@ class Posterior:
         return NoiseLevel.from_dict(d)
 
     @property
+    def view_gains(self):
+        """The fitted photos' gains (:class:`~bayes_brdf.models.gains.ViewGains`) the run estimated
+        (``view_gain = "estimated"``), or ``None``: every photo as bright as the capture states."""
+        d = self.meta.get("view_gains")
+        if not isinstance(d, dict):
+            return None
+        from .models.gains import ViewGains
+        return ViewGains.from_dict(d)
+
+    @property
     def diagnostics(self) -> dict | None:
         """The run's convergence checks (``{"converged", "failed", "checks"}``), or ``None``."""
         return self.meta.get("diagnostics")

@@ -114,7 +114,10 @@ def predictive_cdf(post, views, images: Tensor, surface: PlanarSample | None = N
     ``sigma``/``kind`` default to the posterior's (``post.noise_sigma``: the model's
     sigma or the inferred one; ``model.likelihood``). Under signal-dependent noise
     (``post.noise_level``) a particle's scale at a pixel is ``sigma * g(R_i)``, ``g`` of the mean
-    over channels of its render there. Returns ``(F, std, mean)``, each ``[V, H, W, 3]``.
+    over channels of its render there. The ``views`` are new photos: where the run estimated the fitted
+    photos' gains (``post.view_gains``, :mod:`bayes_brdf.models.gains`), a new photo's unknown gain is
+    integrated out over equal-probability nodes of its predictive (``g R_i`` in place of ``R_i``).
+    Returns ``(F, std, mean)``, each ``[V, H, W, 3]``; ``std`` and ``mean`` are the renders' (Eq. 11).
     """
     model = getattr(post, "model", None)
     sigma = float(sigma if sigma is not None else getattr(post, "noise_sigma", None) or 0)
@@ -123,15 +126,22 @@ def predictive_cdf(post, views, images: Tensor, surface: PlanarSample | None = N
         raise InputError("the predictive needs the likelihood's noise scale", fix="pass sigma= (image units)")
     y = torch.as_tensor(images)
     level = getattr(post, "noise_level", None)
+    gains = getattr(post, "view_gains", None)
+    nodes = [0.0] if gains is None else gains.new_view_nodes().tolist()
     Fs, stds, means = [], [], []
     for s, e, r, _ in particle_renders(post, views, surface, chunk_views=chunk_views):
-        scale = sigma if level is None else sigma * level.relative(r.mean(2, keepdim=True)).to(r)
-        t = (y[s:e].to(r).permute(0, 3, 1, 2)[None] - r) / scale
-        if kind == "laplace":
-            cdf = torch.where(t < 0, 0.5 * torch.exp(t.clamp_max(0)), 1 - 0.5 * torch.exp(-t.clamp_min(0)))
-        else:
-            cdf = 0.5 * (1 + torch.erf(t / math.sqrt(2)))
-        Fs.append(cdf.mean(0))
+        obs = y[s:e].to(r).permute(0, 3, 1, 2)[None]
+        F = torch.zeros_like(r[0])
+        for lg in nodes:
+            rg = r * math.exp(lg) if lg else r
+            scale = sigma if level is None else sigma * level.relative(rg.mean(2, keepdim=True)).to(r)
+            t = (obs - rg) / scale
+            if kind == "laplace":
+                cdf = torch.where(t < 0, 0.5 * torch.exp(t.clamp_max(0)), 1 - 0.5 * torch.exp(-t.clamp_min(0)))
+            else:
+                cdf = 0.5 * (1 + torch.erf(t / math.sqrt(2)))
+            F += cdf.mean(0)
+        Fs.append(F / len(nodes))
         stds.append(r.std(0) if r.shape[0] > 1 else torch.zeros_like(r[0]))
         means.append(r.mean(0))
     cat = lambda xs: torch.cat(xs).permute(0, 2, 3, 1)  # noqa: E731

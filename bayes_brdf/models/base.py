@@ -13,6 +13,8 @@ function (see docs/models.md, "The model protocol"):
   or ``"auto"`` when it is inferred (then the posterior records the inferred value).
 * ``pixel_noise`` -- ``"signal"`` (under ``sigma = "auto"``: a per-pixel scale that grows with the
   radiance, its shape estimated after the burn-in, :mod:`bayes_brdf.noise_estimate`) or ``"constant"``.
+* ``view_gain`` -- ``"estimated"`` (under ``pixel_noise = "signal"``: each photo's overall brightness is a
+  nuisance gain estimated after the burn-in, :mod:`bayes_brdf.models.gains`) or ``"none"``.
 * ``initial_values(data, n, seed) -> {site: [n, ...]}`` -- where samplers start, for a
   model whose prior cannot be sampled (a flat prior) or whose prior draws are poor starts
   (the latent decoder projects the photos into its latent space).
@@ -37,6 +39,7 @@ from torch import Tensor
 from ..errors import InputError
 from .data import ModelData
 from .likelihood import KINDS, RenderedImages, check_saturated, check_sigma, observe
+from .gains import check_view_gain
 from .noise import check_pixel_noise
 
 #: the maps of an SVBRDF, in the order of the map-space summaries
@@ -75,6 +78,8 @@ class ObservedModel:
     backend: str = "auto"
     pixel_noise: str = "signal"                        # "signal": under sigma = "auto", a scale that grows with
     #                                                    the radiance (camera-like); "constant": one scale
+    view_gain: str = "none"                            # "estimated": each photo's overall brightness a nuisance
+    #                                                    (with pixel_noise = "signal"); "none": as stated
 
     kind = "model"
 
@@ -82,6 +87,7 @@ class ObservedModel:
         check_sigma(self.sigma)
         check_saturated(self.saturated)
         check_pixel_noise(self.pixel_noise)
+        check_view_gain(self.view_gain)
         if self.likelihood not in KINDS:
             raise InputError(f"unknown likelihood '{self.likelihood}'", fix=f"use one of {', '.join(KINDS)}")
 

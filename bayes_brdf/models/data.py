@@ -127,6 +127,17 @@ class ModelData:
             c = replace(c, noise=None if censored is None else torch.as_tensor(censored).to(c.level))
         return replace(self, noise=relative.clamp_min(1e-6).contiguous(), censored=c)
 
+    def with_gains(self, gains: Tensor) -> "ModelData":
+        """A copy whose photos are divided by their views' gains ``gains [V]`` (each photo's overall brightness,
+        :mod:`bayes_brdf.models.gains`): the saturated pixels' lower bounds too."""
+        g = torch.as_tensor(gains, dtype=self.dtype, device=self.device).reshape(-1)
+        if g.shape[0] != self.num_views or not bool((g > 0).all()):
+            raise InputError(f"view gains must be {self.num_views} positive numbers, got {tuple(g.shape)}")
+        c = self.censored
+        if c is not None:
+            c = replace(c, level=(c.level / g[c.view.to(self.device)][:, None]).contiguous())
+        return replace(self, images=(self.images / g.view(-1, 1, 1, 1)).contiguous(), censored=c)
+
     @property
     def num_views(self) -> int:
         return self.images.shape[0]

@@ -47,11 +47,15 @@ def fitted_noise(post, obs) -> float:
     """Laplace scale of the MAP's residuals on the fitted photos (mean |R - y| over usable pixels):
     the noise level the data show, to compare with the model's ``sigma``. Under signal-dependent noise
     (``post.noise_level``) each residual is divided by its pixel's relative scale ``g(R)``, so the
-    number is in the units of ``post.noise_sigma`` (the scale at the reference radiance)."""
+    number is in the units of ``post.noise_sigma`` (the scale at the reference radiance). Where the run
+    estimated the photos' gains (``post.view_gains``), the photos are divided by them first, as the fit did."""
     from ..models.data import ModelData
     from ..render.shade import render
 
     d = ModelData.from_observations(obs)
+    gains = post.view_gains
+    if gains is not None and len(gains.log_gain) == d.num_views:
+        d = d.with_gains(gains.gains())
     pred = render(post.maps("map"), obs.views, obs.surface)[0]
     w = d.weight > 0
     r = (pred - d.images.to(pred)).abs()
