@@ -30,9 +30,9 @@ def test_per_texel_std_tails_against_exact_truth():
 @pytest.mark.slow
 @pytest.mark.parametrize("setup, bar", [
     (Table1Setup(observations=[30], grid=600), 2.0),                  # two views: the previous preset was 5-17x above
-    # three views: 1.09 / 1.47x with one Adam scale per group, 1.81 / 2.30x with one per particle (measured;
-    # docs/calibration.md says why and that it is over the 2x); with Adam's scale unbounded 2.39 / 2.99x
-    (Table1Setup(observations=[20, 40], sigma=0.02, grid=600), 2.5),
+    # three views, a skewed posterior: 1.81 / 2.30x with beta = 200 in 2-D (nearly SVGD, whose fixed point drops
+    # the long roughness tail), 1.71 / 1.68x with the preset's beta = 5 (docs/calibration.md)
+    (Table1Setup(observations=[20, 40], sigma=0.02, grid=600), 2.0),
 ], ids=["two_views", "three_views"])
 def test_tighter_2d_posteriors_near_the_floor(setup, bar):
     t = compare(setup, samplers=("spos",), runs=20, particles=16, steps=None)
