@@ -19,6 +19,7 @@ from .potential import Potential
 from .presets import load_preset
 from .render.scene import surface_state
 from .samplers import make_sampler
+from .samplers.diagnostics import drawn
 from .samplers.driver import run
 
 
@@ -63,7 +64,7 @@ def _sample(smp, pot, model, data, kw: dict, *, seed, checkpoint, progress, call
 
     Two phases (:mod:`bayes_brdf.noise_estimate`): a burn-in of :data:`NOISE_BURNIN` of the steps under one
     noise scale, whose particles' renders give the photos' gains (``view_gain = "estimated"``) and whose
-    residuals give the noise level's shape; then the rest of the run on the corrected photos under the
+    residuals give the noise level's shape (all particles but those its diagnostics call left behind); then the rest of the run on the corrected photos under the
     per-pixel scale, from where the burn-in ended, without a second annealing. The burn-in has its own
     checkpoint; progress, resume and Ctrl-C speak of the whole run. Returns ``(result, potential, data,
     noise level or None, view gains or None, identity)``, the last four as the second phase used them.
@@ -78,7 +79,9 @@ def _sample(smp, pot, model, data, kw: dict, *, seed, checkpoint, progress, call
     kw1 = {**kw, "steps": steps1, "max_steps": None}
     burnin = run(smp, pot, seed=seed, checkpoint=_phase_path(checkpoint, "burnin"), progress=progress,
                  z0=z0, identity={**identity, "phase": "burnin"}, span=(0, kw["steps"]), **kw1)
-    data, noise_level, gains = estimate_noise(model, data, pot.to_constrained(burnin.z))
+    keep = drawn(burnin.energies)          # particles left behind are no posterior draws: their residuals no noise
+    z = burnin.z if keep is None else burnin.z[keep]
+    data, noise_level, gains = estimate_noise(model, data, pot.to_constrained(z))
     pot = Potential(model, (data,))
     kw["steps"] = max(1, kw["steps"] - steps1)
     if kw.get("max_steps"):

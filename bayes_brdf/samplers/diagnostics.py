@@ -235,12 +235,28 @@ def stragglers(z: Tensor, sds: float = 10.0) -> float:
     return float((dev > sds * scale).to(torch.float64).mean())
 
 
-def behind(energies: Tensor) -> float:
-    """Fraction of particles whose energy exceeds the median by ``max(10, 10 * 1.4826 * MAD)``."""
+def behind_mask(energies: Tensor) -> Tensor:
+    """Which particles' energy exceeds the median by ``max(10, 10 * 1.4826 * MAD)`` (``[n]`` booleans)."""
     e = energies.to(torch.float64)
     med = e.median()
     mad = (e - med).abs().median() * 1.4826
-    return float((e - med > max(10.0, 10.0 * float(mad))).to(torch.float64).mean())
+    return e - med > max(10.0, 10.0 * float(mad))
+
+
+def behind(energies: Tensor) -> float:
+    """Fraction of particles whose energy exceeds the median by ``max(10, 10 * 1.4826 * MAD)``."""
+    return float(behind_mask(energies).to(torch.float64).mean())
+
+
+def drawn(energies: Tensor | None) -> Tensor | None:
+    """Which of a run's final particles stand for posterior draws (``[n]`` booleans), from its per-step
+    energies ``[steps, n]``: all but those left behind (:func:`behind_mask`), whose renders are no draw's
+    and whose residuals are no noise. ``None`` (all of them) when the energies are missing or not finite,
+    or fewer than two particles would remain."""
+    if energies is None or not len(energies) or not bool(torch.isfinite(energies[-1]).all()):
+        return None
+    keep = ~behind_mask(energies[-1])
+    return keep if int(keep.sum()) >= 2 else None
 
 
 def stein_ratio(z: Tensor, grad: Tensor) -> float:
