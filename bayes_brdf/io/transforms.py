@@ -305,7 +305,8 @@ def load_transforms(path, resolution=None, gamma=2.2, *, max_resolution=None) ->
         >>> obs.surface.num_faces, obs.resolution   # doctest: +SKIP
         (5120, (96, 128))
     """
-    from ..render.mesh import UNITS, UP_AXES, Mesh
+    from ..render.mesh import Mesh
+    from ..render.mesh_io import UNITS, UP_AXES
 
     p = Path(path)
     jf = p / TRANSFORMS_FILE if p.is_dir() else p
@@ -421,16 +422,6 @@ def load_transforms(path, resolution=None, gamma=2.2, *, max_resolution=None) ->
 
 
 # ------------------------------------------------------------------ writing
-def _obj_text(mesh) -> str:
-    """The mesh as OBJ text, full float64 precision, one v/vt/vn index per vertex (read back exactly by Mesh.load)."""
-    lines = [f"# {mesh.name}: written by bayes_brdf (units: cm, up: z)"]
-    lines += [f"v {x!r} {y!r} {z!r}" for x, y, z in mesh.vertices.tolist()]
-    lines += [f"vt {u!r} {v!r}" for u, v in mesh.uv.tolist()]
-    lines += [f"vn {x!r} {y!r} {z!r}" for x, y, z in mesh.normals.tolist()]
-    lines += ["f " + " ".join(f"{k}/{k}/{k}" for k in (a + 1, b + 1, c + 1)) for a, b, c in mesh.faces.tolist()]
-    return "\n".join(lines) + "\n"
-
-
 def _dumps(doc) -> str:
     """JSON with indent 2, but each innermost list of numbers on one line (matrix rows, colours)."""
     import json
@@ -469,6 +460,7 @@ def save_transforms(obs, folder, image_format: str = "exr", *, mesh_path: str | 
         PosixPath('out/sphere_capture/transforms.json')
     """
     from ..render.mesh import Mesh
+    from ..render.mesh_io import obj_text
     from .images import write_exr, write_png
     from .outputs import write_text
 
@@ -534,6 +526,6 @@ def save_transforms(obs, folder, image_format: str = "exr", *, mesh_path: str | 
             if keep:
                 fr[key] = f"{'masks' if name == 'mask' else name}/frame_{i:03d}.png"
                 write_png(out / fr[key], mk[i].detach().cpu().float(), linear=False)
-    write_text(out / mp, _obj_text(obs.surface))
+    write_text(out / mp, obj_text(obs.surface))
     doc["frames"] = frames
     return write_text(out / TRANSFORMS_FILE, _dumps(doc))
