@@ -9,6 +9,9 @@ Conventions
   face ``(a, b, c)`` is ``(b - a) x (c - a)`` (right-hand rule) and points out.
 * **Normals** are unit per-vertex shading normals (from the file when it has
   sane ones, else area-weighted face normals, or analytic for built-in shapes).
+  They decide a face's side in rendering: a face wound against its vertex
+  normals (common in scans and exports) is shaded as the normals say
+  (:mod:`.raycast`).
 * **Texture** coordinates are per-vertex ``uv`` in ``[0, 1]``, OBJ convention:
   ``u`` runs along texture columns, ``v`` points *up*, so texture image row 0
   is at ``v = 1``. :meth:`Mesh.grid_coords` maps ``uv`` to ``grid_sample``

@@ -74,8 +74,10 @@ def load_mesh(path, *, units: str | None = None, scene_units: str = "cm", up: st
       A scene of several parts with different materials overlaps in uv,
       so it gets an atlas under ``"auto"``.
     * Normals come from the file when it has finite non-zero ones, else
-      area-weighted face normals. Unreferenced vertices are dropped; faces
-      keep their order.
+      area-weighted face normals. The file's normals and winding are kept as
+      they are (``trimesh`` reads unprocessed) even where faces wind against
+      the normals: the ray caster shades such faces by the normals.
+      Unreferenced vertices are dropped; faces keep their order.
 
     ``meta`` records the source path and its SHA-256, file and scene units,
     up axis, where uv and normals came from, and the atlas settings.

@@ -22,10 +22,11 @@ Conventions (found by test, ``tests/render/test_mitsuba_equivalence.py``):
   padding_mode="border")``; ``raw=True`` keeps the values linear (and the normal map's negative
   components).
 * The BSDF builds our shading frame itself in world space from the surface interaction, as
-  :mod:`.raycast` does: two-sided by the *geometric* normal against the incoming direction (both
-  normals flipped to face the camera), tangent = ``dp/du`` made orthogonal to the shading normal,
-  bitangent ``n x t`` turned to follow ``+v`` (``dp/dv``); the tangent-space normal map is
-  ``x t + y b + z n``, normalised.
+  :mod:`.raycast` does: the geometric normal turned to the side of the shading normal (a face wound
+  against its vertex normals shades as they say), then two-sided by it against the incoming
+  direction (both normals flipped to face the camera), tangent = ``dp/du`` made orthogonal to the
+  shading normal, bitangent ``n x t`` turned to follow ``+v`` (``dp/dv``); the tangent-space normal
+  map is ``x t + y b + z n``, normalised.
 * Every cosine (``n.l, n.v, n.h, v.h``, with the mapped normal) is clamped at ``eps`` as ours are, and
   ``eval`` returns ``f * (n.l)``: Mitsuba's point emitter gives ``intensity / d^2``, so ``intensity``
   = our light power.
@@ -107,8 +108,9 @@ def _register(mi) -> None:
         def _frame(self, si, active):
             """World ``(mapped normal, shading normal, direction to the camera)``, faced to the camera."""
             wi = si.to_world(si.wi)
-            flip = dr.select(dr.dot(si.n, wi) < 0, -1.0, 1.0)        # two-sided by the geometric normal
-            ng, ns = si.n * flip, si.sh_frame.n * flip
+            ng = si.n * dr.select(dr.dot(si.n, si.sh_frame.n) < 0, -1.0, 1.0)   # the vertex normals' side
+            flip = dr.select(dr.dot(ng, wi) < 0, -1.0, 1.0)           # two-sided by the geometric normal
+            ng, ns = ng * flip, si.sh_frame.n * flip
             ns = dr.normalize(dr.select(dr.squared_norm(ns) > 0, ns, ng))
             tu = si.dp_du - ns * dr.dot(ns, si.dp_du)
             fallback, _ = mi.coordinate_system(ns)

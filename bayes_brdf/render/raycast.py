@@ -8,7 +8,10 @@ by the mesh's digest); the variant comes from :mod:`bayes_brdf.mitsuba_env` (``l
 CPU, ``cuda_ad_rgb`` with a GPU), switched only for the duration of a call.
 
 Conventions, as for the planar sample (:mod:`.hits`): a mesh is shaded two-sided (a pixel that sees
-the back of a face gets the face's normals flipped towards the camera); the tangent follows
+the back of a face gets the face's normals flipped towards the camera), the side of a face being the
+side its vertex normals point to, whatever its winding (the geometric normal is first turned to agree
+with the interpolated shading normal: scans and exports often wind faces against their normals, which
+would otherwise turn the shading normal away from the camera, black); the tangent follows
 ``+u``, the bitangent ``+v`` (the direction of texel row 0) even on mirrored atlas charts; uv in
 ``[0, 1]`` (v up) become ``grid_sample`` coordinates ``(2u - 1, 1 - 2v)``. Shadow rays leave the
 surface offset by :data:`SHADOW_EPS` times the mesh's bounding radius along the geometric normal,
@@ -128,9 +131,11 @@ def intersect(mesh, cameras) -> SurfaceHits:
         ray = mi.Ray3f(_vec(mi, org, mi.Point3f), _vec(mi, dirs, mi.Vector3f))
         si = scene.ray_intersect(ray, ray_flags=mi.RayFlags.All, coherent=True)
         valid = si.is_valid()
-        # the frame, in Dr.Jit (one fused kernel): two-sided normals facing the camera, tangent along +u
-        flip = dr.select(dr.dot(si.n, ray.d) > 0, -1.0, 1.0)
-        ng, ns = si.n * flip, si.sh_frame.n * flip
+        # the frame, in Dr.Jit (one fused kernel): the geometric normal turned to the side of the vertex normals
+        # (a face wound against them shades as they say), then both two-sided, facing the camera; tangent along +u
+        ng = si.n * dr.select(dr.dot(si.n, si.sh_frame.n) < 0, -1.0, 1.0)
+        flip = dr.select(dr.dot(ng, ray.d) > 0, -1.0, 1.0)
+        ng, ns = ng * flip, si.sh_frame.n * flip
         ns = dr.select(dr.squared_norm(ns) > 0, ns, ng)
         ns = dr.normalize(ns)
         tu = si.dp_du - ns * dr.dot(ns, si.dp_du)

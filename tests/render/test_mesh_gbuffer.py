@@ -1,6 +1,7 @@
 """Mesh G-buffers by Mitsuba ray casting, against closed forms: the analytic sphere, the plane, box shadows."""
 import math
 
+import numpy as np
 import pytest
 import torch
 
@@ -117,3 +118,70 @@ def test_light_stage_views_share_their_cameras_rays():
         for f in ("position", "normal", "light_scale", "uv"):
             torch.testing.assert_close(getattr(g, f)[k:k + 1], getattr(one, f))
     assert not torch.equal(g.light_scale[0], g.light_scale[1])             # same camera, other light
+
+
+# ---------------------------------------------------------------- winding against the vertex normals
+def _rewound(mesh: Mesh) -> Mesh:
+    """The same surface with every face wound the other way (geometric normals flipped, vertex normals kept)."""
+    return Mesh(mesh.vertices, mesh.faces[:, ::-1], mesh.uv, mesh.normals, name=mesh.name + "_rewound")
+
+
+def _plate_views():
+    """A collocated flash from above, one from an oblique side above, and one from below the plate."""
+    cams = [PerspectiveCamera((0.0, 0.3, 4.0), resolution=32, fov=40),
+            PerspectiveCamera((2.0, -1.0, 2.5), up=(0, 0, 1), resolution=32, fov=40),
+            PerspectiveCamera((0.2, 0.0, -3.0), up=(0, 1, 0), resolution=32, fov=40)]
+    return [View.collocated(c, 5.0) for c in cams]
+
+
+def test_faces_wound_against_the_vertex_normals_are_shaded_by_the_normals():
+    """A plate whose faces wind downward (-z by the right-hand rule) while its vertex normals say +z, seen from
+    above under a flash: shading follows the normals (up, towards the camera), not black; as the plate wound right."""
+    good = Mesh.plane(2.0)
+    bad = _rewound(good)
+    assert np.all(bad.face_normals[:, 2] < 0) and np.all(bad.normals[:, 2] > 0)
+    views = _plate_views()
+    gb, gg = GBuffer.build(views, bad, dtype=torch.float64), GBuffer.build(views, good, dtype=torch.float64)
+    assert torch.equal(gb.mask, gg.mask) and int(gb.mask[0].sum()) > 300
+    above = gb.mask[0]
+    assert float(gb.normal[0, 2][above].min()) > 0.999                  # up, towards the camera
+    hits = bad.intersect([v.camera for v in views])
+    assert float(hits.geometric_normal[0, 2][above].min()) > 0.999      # oriented by the normals, then two-sided
+    assert float(hits.normal[2, 2][hits.mask[2]].max()) < -0.999         # from below: both flipped to the camera
+    for f in ("position", "normal", "tangent", "bitangent", "view_dir", "light_scale"):
+        torch.testing.assert_close(getattr(gb, f), getattr(gg, f), rtol=0, atol=1e-6, msg=f)
+    maps = SVBRDF.constant(albedo=(0.6, 0.5, 0.4), roughness=0.4, specular=0.04, dtype=torch.float64)
+    ib, ig = render(maps, views, bad), render(maps, views, good)
+    m = gg.mask[None, ..., None].expand_as(ig)                           # images [1, V, H, W, 3]
+    assert float(ig[m].min()) > 0 and float(ib[m].min()) > 0                # lit everywhere on the plate
+    torch.testing.assert_close(ib, ig, rtol=1e-6, atol=1e-9)
+
+
+@pytest.mark.parametrize("ext", ["obj", "ply", "glb"])
+def test_a_file_wound_against_its_normals_keeps_them_and_renders_as_the_right_winding(tmp_path, ext):
+    """Scans and exports often wind faces against their normals: loading keeps the file's normals (no repair), and
+    the render is the one of the plate wound right."""
+    good = Mesh.plane(2.0)
+    path = tmp_path / f"plate.{ext}"
+    _rewound(good).to_trimesh().export(str(path))
+    m = Mesh.load(path)
+    assert m.meta["normals_source"] == "file" and m.meta["uv_source"] == "file"
+    assert np.all(m.face_normals[:, 2] < 0) and np.allclose(m.normals, (0.0, 0.0, 1.0))
+    views = _plate_views()
+    maps = SVBRDF.constant(albedo=(0.6, 0.5, 0.4), roughness=0.4, specular=0.04, dtype=torch.float64)
+    torch.testing.assert_close(render(maps, views, m), render(maps, views, good), rtol=1e-5, atol=1e-7)
+
+
+@pytest.mark.parametrize("shape", ["block_on_plane", "bowl"])
+def test_rewinding_a_closed_or_shadowing_mesh_changes_no_gbuffer(shape):
+    """Every face wound the other way (vertex normals kept): the same normals, frames and shadows (the shadow rays
+    leave on the light's side whatever the winding)."""
+    good = getattr(Mesh, shape)() if shape == "block_on_plane" else Mesh.bowl(rings=12, segments=32)
+    from bayes_brdf.render import hemisphere_directions, light_stage_views
+    views = light_stage_views(hemisphere_directions(2), hemisphere_directions(3, "sobol", max_zenith=75), 4.0, 5.0,
+                              resolution=24)
+    gb, gg = GBuffer.build(views, _rewound(good), dtype=torch.float64), GBuffer.build(views, good, dtype=torch.float64)
+    assert torch.equal(gb.mask, gg.mask)
+    assert int((gg.light_scale == 0).sum()) > 0                         # some shadows to compare
+    for f in ("position", "normal", "tangent", "bitangent", "light_scale", "uv"):
+        torch.testing.assert_close(getattr(gb, f), getattr(gg, f), rtol=0, atol=1e-6, msg=f)
