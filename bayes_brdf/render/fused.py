@@ -39,16 +39,26 @@ from torch import Tensor
 
 from ..errors import InputError
 from . import native, texels
+from . import transfer as env_transfer
 from .brdf import INV_PI, fresnel_weight, microfacet
+
+
+def env_radiance(kd: Tensor, r: Tensor, ks: Tensor, env: Tensor, ks_factor: bool = True) -> Tensor:
+    """Radiance ``[n, V, 3, H, W]`` of an environment light from its precomputed terms ``env [1, V, C, H, W]``
+    (:mod:`.transfer`): ``kd (1 - kf ks) / pi E + ks a(r) + b(r)`` (plain torch, autograd gradients)."""
+    E, a, b = env_transfer.interpolate(env, r)
+    q = (1 - ks) * INV_PI if ks_factor else INV_PI
+    return kd * q * E + ks * a + b
 
 
 
 def eager_kernel(kd: Tensor, r: Tensor, ks: Tensor, nl: Tensor, nv: Tensor, nh: Tensor, vh: Tensor,
-                 scale: Tensor, ks_factor: bool = True) -> Tensor:
-    """Reference kernel (plain torch ops, autograd gradients)."""
-    kd, r, ks = (x.unsqueeze(2) for x in (kd, r, ks))  # add the light dimension
-    f = microfacet(kd, r, ks, nl, nv, nh, vh, ks_factor)
-    return (f * nl * scale).sum(2)
+                 scale: Tensor, ks_factor: bool = True, env: Tensor | None = None) -> Tensor:
+    """Reference kernel (plain torch ops, autograd gradients); ``env``: an environment light's terms."""
+    k3, r3, s3 = (x.unsqueeze(2) for x in (kd, r, ks))  # add the light dimension
+    f = microfacet(k3, r3, s3, nl, nv, nh, vh, ks_factor)
+    out = (f * nl * scale).sum(2)
+    return out if env is None else out + env_radiance(kd, r, ks, env, ks_factor)
 
 
 # ------------------------------------------------------------------ fused path
@@ -154,11 +164,16 @@ def _looked_up(taps, *maps):
 
 
 def compiled_kernel(kd, r, ks, nl, nv, nh, vh, scale, ks_factor: bool = True, torch_compile: bool = True,
-                    taps=None) -> Tensor:
+                    taps=None, env=None) -> Tensor:
     """Fused kernel with analytic gradients w.r.t. ``kd, r, ks`` (falls back to eager when it cannot apply).
 
     ``taps`` (:class:`~bayes_brdf.render.texels.Taps`): the maps are texel maps read bilinearly at each pixel
-    (a mesh's pixels); the native kernel then gathers and scatters the texels itself."""
+    (a mesh's pixels); the native kernel then gathers and scatters the texels itself. ``env``: an environment
+    light's terms (the eager kernel shades them)."""
+    if env is not None:
+        if taps is not None:
+            kd, r, ks = _looked_up(taps, kd, r, ks)
+        return eager_kernel(kd, r, ks, nl, nv, nh, vh, scale, ks_factor, env=env)
     if taps is not None:
         if _texel_route(kd, r, ks, nl, nv, nh, vh, scale, taps) == "native":
             return native.NativeShade.apply(kd, r, ks, nl, nv, nh, vh, scale, ks_factor, taps)
@@ -216,9 +231,10 @@ def get_kernel(backend: str, work: int | None = None, loss: bool = False):
 
 
 # ------------------------------------------------- fused shading + pixel loss
-def eager_loss(kd, r, ks, nl, nv, nh, vh, scale, y, wgt, ks_factor: bool = True, l1: bool = True) -> Tensor:
+def eager_loss(kd, r, ks, nl, nv, nh, vh, scale, y, wgt, ks_factor: bool = True, l1: bool = True,
+               env: Tensor | None = None) -> Tensor:
     """Reference: per-particle ``sum(wgt * |R - y|)`` (``l1``) or ``sum(wgt * (R - y)^2)``, shape ``[n]``."""
-    d = eager_kernel(kd, r, ks, nl, nv, nh, vh, scale, ks_factor) - y
+    d = eager_kernel(kd, r, ks, nl, nv, nh, vh, scale, ks_factor, env=env) - y
     return (wgt * (d.abs() if l1 else d * d)).flatten(1).sum(1)
 
 
@@ -306,9 +322,13 @@ class _FusedLoss(torch.autograd.Function):
 
 
 def compiled_loss(kd, r, ks, nl, nv, nh, vh, scale, y, wgt, ks_factor: bool = True, l1: bool = True,
-                  torch_compile: bool = True, taps=None) -> Tensor:
+                  torch_compile: bool = True, taps=None, env=None) -> Tensor:
     """Fused shading + loss with analytic gradients w.r.t. ``kd, r, ks`` (eager fallback as :func:`compiled_kernel`;
-    ``taps`` as there)."""
+    ``taps`` and ``env`` as there)."""
+    if env is not None:
+        if taps is not None:
+            kd, r, ks = _looked_up(taps, kd, r, ks)
+        return eager_loss(kd, r, ks, nl, nv, nh, vh, scale, y, wgt, ks_factor, l1, env=env)
     if taps is not None:
         if not (y.requires_grad or wgt.requires_grad) and \
                 _texel_route(kd, r, ks, nl, nv, nh, vh, scale, taps) == "native":

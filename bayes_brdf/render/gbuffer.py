@@ -21,6 +21,7 @@ import torch
 from torch import Tensor
 
 from ..errors import InputError
+from . import transfer as env_transfer
 from .hits import texel_index
 from .surface import PlanarSample
 from .views import View
@@ -33,7 +34,9 @@ class GBuffer:
     Shapes (channel-first): ``position, normal, tangent, bitangent, view_dir``
     ``[V, 3, H, W]``; ``light_dir [V, L, 3, H, W]``; ``light_dist2 [V, L, 1, H, W]``;
     ``light_scale [V, L, 3, H, W]`` (RGB power / distance^2, or power alone
-    without falloff, zero outside the mask or for padding lights); ``mask
+    without falloff, zero outside the mask or for padding lights); ``env``
+    ``[V, C, H, W]`` the environment light's precomputed transfer (:mod:`.transfer`: irradiance and the
+    roughness tables; zero for views without one; ``None`` when no view has one); ``mask
     [V, H, W]`` bool; ``uv [V, H, W, 2]`` ``grid_sample`` coordinates in
     ``[-1, 1]``. ``aligned`` is True when every view is a rectified photo whose
     pixels sit exactly on the texel grid of a map of resolution ``(H, W)``.
@@ -60,13 +63,16 @@ class GBuffer:
     texel: Tensor | None = None          # gathered pixels of aligned views: flat texel index [V, H, W] ...
     texel_grid: tuple | None = None      # ... into a map of this (H, W) (see :meth:`gather`)
     gathered: bool = False               # True for the 1 x K view of selected pixels :meth:`gather` returns
+    env: Tensor | None = None            # [V, transfer.CHANNELS, H, W] environment terms (zero for views without)
 
     @classmethod
     def build(cls, views: list[View], surface, *, dtype=torch.float32, device=None) -> "GBuffer":
         """Compute the G-buffer of ``views`` (all of one resolution) looking at ``surface``.
 
         The surface gives the hits (:meth:`intersect`) and the shadow tests (:meth:`occluded`), each
-        light its incident terms (:meth:`PointLight.incident`); all in float64, then cast.
+        light what it delivers: a point light its incident terms (:meth:`PointLight.incident`), an environment
+        its transfer (:func:`~bayes_brdf.render.transfer.transfer`, shadowed by
+        ``surface.occluded_directions``); all in float64, then cast.
         """
         views = list(views)
         if not views:
@@ -76,7 +82,7 @@ class GBuffer:
             raise InputError(f"views have different resolutions {sorted(res)}",
                              fix="shade views of different resolutions in separate calls")
         h, w = res.pop()
-        L = max(len(v.lights) for v in views)
+        L = max(len(v.point_lights) for v in views)
         cams = [v.camera for v in views]
         uniq = list(dict.fromkeys(cams))               # a light stage: many views share a camera, cast its rays once
         hits = surface.intersect(uniq)
@@ -85,8 +91,9 @@ class GBuffer:
             hits = hits.select([where[c] for c in cams])
         lpos = torch.zeros(len(views), L, 3, dtype=torch.float64)
         for k, v in enumerate(views):
-            lpos[k, :len(v.lights)] = torch.tensor([l.position for l in v.lights], dtype=torch.float64)
-        blocked = surface.occluded(hits, lpos)          # [V, L, H, W] bool, or None: nothing casts shadows
+            if v.point_lights:
+                lpos[k, :len(v.point_lights)] = torch.tensor([l.position for l in v.point_lights], dtype=torch.float64)
+        blocked = surface.occluded(hits, lpos) if L else None   # [V, L, H, W] bool, or None: nothing casts shadows
         per_view = []
         for k, v in enumerate(views):
             pos, mask = hits.position[k], hits.mask[k]
@@ -96,15 +103,23 @@ class GBuffer:
             ld = torch.zeros(L, 3, h, w, dtype=torch.float64)
             d2 = torch.ones(L, 1, h, w, dtype=torch.float64)
             scale = torch.zeros(L, 3, h, w, dtype=torch.float64)
-            for i, light in enumerate(v.lights):
+            for i, light in enumerate(v.point_lights):
                 inc = light.incident(pos, mask, None if blocked is None else ~blocked[k, i],
                                      where=f"{i} of view '{v.name}' ")
                 ld[i], d2[i], scale[i] = inc.direction, inc.dist2, inc.scale
             per_view.append((vd, ld, d2, scale))
         stack = lambda k: torch.stack([pv[k] for pv in per_view])  # noqa: E731
+        env = None
+        if any(v.environment is not None for v in views):
+            env = torch.zeros(len(views), env_transfer.CHANNELS, h, w, dtype=torch.float64)
+            ng = hits.geometric_normal if hits.geometric_normal is not None else hits.normal
+            for k, v in enumerate(views):
+                if v.environment is not None:
+                    env[k] = env_transfer.transfer(v.environment, hits.position[k], hits.normal[k], ng[k],
+                                                   per_view[k][0], hits.mask[k], surface)
         g = cls(position=hits.position, normal=hits.normal, tangent=hits.tangent, bitangent=hits.bitangent,
                 view_dir=stack(0), light_dir=stack(1), light_dist2=stack(2), light_scale=stack(3), mask=hits.mask,
-                uv=hits.uv, align_corners=hits.align_corners, aligned=hits.aligned)
+                uv=hits.uv, align_corners=hits.align_corners, aligned=hits.aligned, env=env)
         return g.to(dtype=dtype, device=device)
 
     @property
@@ -122,7 +137,10 @@ class GBuffer:
         """Memory one view adds to a G-buffer (``dtype`` values; for planning chunks before building); ``flat``:
         the surface's frame is one vector (the plane), else three per pixel (a mesh) and its compacted copy."""
         h, w = view.resolution
-        floats = 8 + 7 * len(view.lights) + (0 if flat else 9 + 17 + 7 * len(view.lights))
+        nl = len(view.point_lights)
+        floats = 8 + 7 * nl + (0 if flat else 9 + 17 + 7 * nl)
+        if view.environment is not None:
+            floats += env_transfer.CHANNELS * (1 if flat else 2)
         return h * w * (floats * torch.finfo(dtype).bits // 8 + 1)
 
     @property

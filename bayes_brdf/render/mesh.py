@@ -253,6 +253,12 @@ class Mesh:
         from .raycast import occluded
         return occluded(self, hits, light_positions)
 
+    def occluded_directions(self, points, normals, directions):
+        """``[N]`` bool: whether rays from ``points [N, 3]`` along ``directions [N, 3]`` meet the mesh (towards an
+        environment; :func:`bayes_brdf.render.raycast.occluded_directions`)."""
+        from .raycast import occluded_directions
+        return occluded_directions(self, points, normals, directions)
+
     @property
     def center(self) -> tuple[float, float, float]:
         """Centre of the bounding box (the point view directions are measured from).

@@ -193,3 +193,23 @@ def occluded(mesh, hits: SurfaceHits, light_positions: Tensor) -> Tensor:
         for l in range(L):
             out[l, mask] = torch.from_numpy(np.asarray(blocked[l])).bool()
     return out.reshape(L, V, h, w).transpose(0, 1)
+
+
+def occluded_directions(mesh, points: Tensor, normals: Tensor, directions: Tensor) -> Tensor:
+    """``[N]`` bool: True where the ray from ``points [N, 3]`` along ``directions [N, 3]`` (unit, towards a light
+    at infinity, e.g. an environment) meets ``mesh``. Each ray leaves its point offset by :data:`SHADOW_EPS` times
+    the mesh radius along ``normals [N, 3]`` (the geometric normal), on the direction's side."""
+    n = points.shape[0]
+    if n == 0:
+        return torch.zeros(0, dtype=torch.bool)
+    eps = SHADOW_EPS * mesh.radius
+    with mitsuba_variant() as mi:
+        scene = SCENES.get(mesh, mi.variant(), mi)
+        import drjit as dr
+        p = _vec(mi, points.T.float().numpy(), mi.Point3f)
+        nrm = _vec(mi, normals.T.float().numpy(), mi.Vector3f)
+        d = _vec(mi, directions.T.float().numpy(), mi.Vector3f)
+        org = p + nrm * dr.select(dr.dot(nrm, d) >= 0, eps, -eps)
+        blocked = scene.ray_test(mi.Ray3f(org, d))
+        dr.eval(blocked)
+        return torch.from_numpy(np.asarray(blocked)).bool()

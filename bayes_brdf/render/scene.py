@@ -19,6 +19,8 @@ from .views import View
 
 #: prefix of a surface's tensors inside a file that holds other tensors too (posterior, bundle)
 TENSOR_PREFIX = "surface/"
+#: prefix of the environment maps of a scene's lights (one per map, by digest)
+ENVIRONMENT_PREFIX = "environment/"
 
 
 def surface_state(surface) -> tuple[dict, dict]:
@@ -100,9 +102,14 @@ class Scene:
     def state(self) -> tuple[dict, dict]:
         """``({"surface": ..., "views": [...]}, tensors)`` for saving."""
         meta, tensors = surface_state(self.surface)
+        for v in self.views:
+            if v.environment is not None:
+                tensors[ENVIRONMENT_PREFIX + v.environment.digest] = v.environment.radiance
         return {"surface": meta, "views": [v.to_dict() for v in self.views]}, tensors
 
     @classmethod
     def from_state(cls, meta: dict, tensors: dict | None = None, where: str | None = None) -> "Scene":
-        views = [View.from_dict(v, where=f"{where or 'scene'} views[{i}]") for i, v in enumerate(meta.get("views", []))]
+        envs = {k[len(ENVIRONMENT_PREFIX):]: t for k, t in (tensors or {}).items() if k.startswith(ENVIRONMENT_PREFIX)}
+        views = [View.from_dict(v, where=f"{where or 'scene'} views[{i}]", environments=envs)
+                 for i, v in enumerate(meta.get("views", []))]
         return cls(surface_from_state(meta.get("surface", {}), tensors, where), tuple(views))

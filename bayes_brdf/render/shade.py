@@ -117,6 +117,8 @@ def _chunks(maps: SVBRDF, g: GBuffer, eps: float, chunk_views: int | None, texel
     nrm = maps.normal
     fixed_normals = nrm.dim() == 3 and not nrm.requires_grad
     memo = g.__dict__.setdefault("_cosines", {})  # {(start, stop, eps): (normal map, its version, cosines)}
+    if g.env is not None:
+        _check_env_normals(nrm, memo)
 
     def cosines(s, e, gc):
         if not fixed_normals:  # per-particle or differentiated normals: recomputed every call
@@ -140,9 +142,25 @@ def _chunks(maps: SVBRDF, g: GBuffer, eps: float, chunk_views: int | None, texel
             sc = memo.get((s, e, "scale"))
             if sc is None or sc[0] is not g.light_scale:    # one view object, so the native geometry cache hits
                 sc = memo[(s, e, "scale")] = (g.light_scale, gc.light_scale[None])
-            yield s, e, (kd, rough, ks, *cosines(s, e, gc), sc[1]), tp
+            env = None if g.env is None else gc.env[None]
+            yield s, e, (kd, rough, ks, *cosines(s, e, gc), sc[1]), tp, env
 
     return n, g, it()
+
+
+def _check_env_normals(nrm: Tensor, memo: dict) -> None:
+    """An environment's transfer is precomputed for the surface's own normals: the normal map must be flat."""
+    hit = memo.get("env_normals")
+    if hit is not None and hit[0] is nrm and hit[1] == nrm._version:
+        return
+    flat = torch.tensor([0.0, 0.0, 1.0], dtype=nrm.dtype, device=nrm.device)
+    ok = not nrm.requires_grad and nrm.dim() == 3 and bool(
+        ((nrm - flat[:, None, None]).abs() <= 1e-6).all())
+    if not ok:
+        raise InputError("under an environment light the normal map must be flat (the light's transfer is "
+                         "precomputed for the surface's own normals)",
+                         fix="use normals='flat' with an environment light, or point lights only")
+    memo["env_normals"] = (nrm, nrm._version)
 
 
 def shade(maps: SVBRDF, g: GBuffer, *, ks_factor: bool = True, eps: float = 1e-8,
@@ -176,8 +194,9 @@ def shade_chunks(maps: SVBRDF, g: GBuffer, *, ks_factor: bool = True, eps: float
     n, g, chunks = _chunks(maps, g, eps, chunk_views, texel_space=backend != "eager")
     V, (h, w) = g.num_views, g.resolution
     kernel = fused.get_kernel(backend, n * V * h * w)
-    for s, e, args, tp in chunks:
-        out = kernel(*args, ks_factor) if tp is None else kernel(*args, ks_factor, taps=tp)
+    for s, e, args, tp, env in chunks:
+        extra = {} if env is None else {"env": env}
+        out = kernel(*args, ks_factor, **extra) if tp is None else kernel(*args, ks_factor, taps=tp, **extra)
         yield s, e, out.expand(n, e - s, 3, h, w)
 
 
@@ -334,7 +353,9 @@ def shade_loss(maps: SVBRDF, g: GBuffer, target: Tensor, weight: Tensor | float 
     wt = (wt.expand(V, h, w) if wt.dim() < 3 else wt)[:, None]
     kernel = fused.get_loss_kernel(backend, n * V * h * w)
     total = 0.0
-    for s, e, args, tp in chunks:
+    for s, e, args, tp, env in chunks:
         extra = {} if tp is None else {"taps": tp}
+        if env is not None:
+            extra["env"] = env
         total = total + kernel(*args, y[s:e].contiguous(), wt[s:e].contiguous(), ks_factor, kind == "l1", **extra)
     return total.expand(n) if total.dim() == 1 else total

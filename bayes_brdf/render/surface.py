@@ -16,6 +16,8 @@ which is all the G-buffer needs:
 * ``intersect(cameras) -> SurfaceHits`` -- where each pixel meets the surface (:mod:`.hits`);
 * ``occluded(hits, light_positions [V, L, 3]) -> [V, L, H, W] bool`` or ``None`` -- shadow tests
   (``None``: nothing can shadow, as on a plane);
+* ``occluded_directions(points [N, 3], normals [N, 3], directions [N, 3]) -> [N] bool`` or ``None`` -- the
+  same towards lights at infinity (an environment);
 * ``center`` and ``radius`` -- a bounding sphere, for placing cameras and measuring view directions;
 * ``state()`` -- a JSON-able description plus tensors, so a scene can be saved (:mod:`.scene`).
 """
@@ -110,6 +112,10 @@ class PlanarSample:
 
     def occluded(self, hits: SurfaceHits, light_positions: Tensor) -> None:
         """A plane cannot shadow itself: ``None`` (a light below it is handled by the clamped ``n.l``)."""
+        return None
+
+    def occluded_directions(self, points: Tensor, normals: Tensor, directions: Tensor) -> None:
+        """A plane occludes no direction: ``None`` (light from below it is handled by the clamped ``n.l``)."""
         return None
 
     @property

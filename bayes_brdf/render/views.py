@@ -20,6 +20,7 @@ import torch
 from .. import checks
 from ..errors import InputError
 from .cameras import PerspectiveCamera, RectifiedCamera
+from .environment import EnvironmentLight
 from .lights import PointLight
 
 Camera = PerspectiveCamera | RectifiedCamera
@@ -27,7 +28,9 @@ Camera = PerspectiveCamera | RectifiedCamera
 
 @dataclass(frozen=True)
 class View:
-    """A camera and the point lights that are on for this observation.
+    """A camera and the lights that are on for this observation: any mix of
+    :class:`~bayes_brdf.render.lights.PointLight` (a flash, a lamp) and at most one
+    :class:`~bayes_brdf.render.environment.EnvironmentLight` (the room around it).
 
     Example:
         >>> v = View.collocated(PerspectiveCamera(position=(0, 0, 3)), power=10)
@@ -36,14 +39,32 @@ class View:
     """
 
     camera: Camera
-    lights: tuple[PointLight, ...]
+    lights: tuple
     name: str = ""
 
     def __post_init__(self):
-        lights = tuple(self.lights) if not isinstance(self.lights, PointLight) else (self.lights,)
+        single = isinstance(self.lights, (PointLight, EnvironmentLight))
+        lights = (self.lights,) if single else tuple(self.lights)
         if not lights:
             raise InputError(f"view {self.name or ''} has no light", fix="give at least one PointLight")
+        bad = [type(l).__name__ for l in lights if not isinstance(l, (PointLight, EnvironmentLight))]
+        if bad:
+            raise InputError(f"view {self.name or ''} has a light of unknown kind ({bad[0]})",
+                             fix="use PointLight or EnvironmentLight")
+        if sum(isinstance(l, EnvironmentLight) for l in lights) > 1:
+            raise InputError(f"view {self.name or ''} has more than one environment light",
+                             fix="merge the environment maps into one")
         object.__setattr__(self, "lights", lights)
+
+    @property
+    def point_lights(self) -> tuple:
+        """The view's point lights (flashes, lamps), in order."""
+        return tuple(l for l in self.lights if isinstance(l, PointLight))
+
+    @property
+    def environment(self) -> EnvironmentLight | None:
+        """The view's environment light, or ``None``."""
+        return next((l for l in self.lights if isinstance(l, EnvironmentLight)), None)
 
     @classmethod
     def collocated(cls, camera: Camera, power=1.0, falloff: bool = True, name: str = "") -> "View":
@@ -58,16 +79,33 @@ class View:
     def to_dict(self) -> dict:
         cam = asdict(self.camera)
         cam["type"] = "rectified" if isinstance(self.camera, RectifiedCamera) else "perspective"
-        return {"name": self.name, "camera": cam, "lights": [asdict(l) for l in self.lights]}
+        return {"name": self.name, "camera": cam,
+                "lights": [l.to_dict() if isinstance(l, EnvironmentLight) else asdict(l) for l in self.lights]}
 
     @classmethod
-    def from_dict(cls, d: dict, where: str = "view") -> "View":
+    def from_dict(cls, d: dict, where: str = "view", environments: dict | None = None) -> "View":
+        """The view of :meth:`to_dict`; an environment light's map is looked up by its digest in
+        ``environments`` (``{digest: radiance [H, W, 3]}``, as :class:`~bayes_brdf.render.scene.Scene` saves)."""
         try:
             cam = dict(d["camera"])
             kind = cam.pop("type", "perspective")
             cam_cls = {"rectified": RectifiedCamera, "perspective": PerspectiveCamera}[kind]
-            lights = tuple(PointLight(**l) for l in d["lights"])
-            return cls(cam_cls(**cam), lights, d.get("name", ""))
+            lights = []
+            for l in d["lights"]:
+                l = dict(l)
+                if l.pop("type", "point") == "environment":
+                    dg = l.pop("digest")
+                    if dg not in (environments or {}):
+                        raise InputError(f"the environment map {dg} of this view is missing from the file",
+                                         fix="re-save the file with its environment maps")
+                    env = EnvironmentLight(environments[dg], l.get("scale", 1.0), l.get("to_world"), l.get("name", ""))
+                    if env.digest != dg:
+                        raise InputError(f"the environment map {dg} does not match its stored digest",
+                                         fix="the file is damaged: re-save it")
+                    lights.append(env)
+                else:
+                    lights.append(PointLight(**l))
+            return cls(cam_cls(**cam), tuple(lights), d.get("name", ""))
         except InputError as e:
             raise InputError(str(e), where=where) from None
         except (KeyError, TypeError, ValueError) as e:

@@ -1,0 +1,249 @@
+"""The environment light: Mitsuba's envmap convention, its sampling, bad maps, and the precomputed transfer
+against brute-force quadrature and a closed form of shadows (a sphere on a plane)."""
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from bayes_brdf.errors import InputError
+from bayes_brdf.render import SVBRDF, PlanarSample, collocated_views
+from bayes_brdf.render.environment import EnvironmentLight, z_up
+from bayes_brdf.render.gbuffer import GBuffer
+from bayes_brdf.render.mesh import Mesh
+from bayes_brdf.render.scene import Scene
+from bayes_brdf.render.shade import shade, shade_loss
+from bayes_brdf.render.transfer import TransferSamples, interpolate, irradiance, transfer
+from bayes_brdf.render.views import View
+
+BALLROOM = "ballroom_1k.exr"
+
+
+def _random_map(h=6, w=12, seed=0):
+    return np.random.default_rng(seed).uniform(0.1, 2.0, (h, w, 3)).astype(np.float32)
+
+
+def _dirs(n, seed=0):
+    d = torch.randn(n, 3, generator=torch.Generator().manual_seed(seed), dtype=torch.float64)
+    return d / d.norm(dim=1, keepdim=True)
+
+
+@pytest.mark.needs_llvm
+def test_lookup_is_mitsubas_envmap_with_to_world_and_scale():
+    from bayes_brdf.mitsuba_env import mitsuba_variant
+    data = _random_map()
+    T = z_up(33.0)
+    env = EnvironmentLight(data, 1.7, T)
+    d = _dirs(3000)
+    with mitsuba_variant() as mi:
+        import drjit as dr
+        em = mi.load_dict({"type": "envmap", "bitmap": mi.Bitmap(data), "scale": 1.7,
+                           "to_world": mi.ScalarTransform4f(np.array(T))})
+        si = dr.zeros(mi.SurfaceInteraction3f, d.shape[0])
+        dn = d.numpy()
+        si.wi = mi.Vector3f(-dn[:, 0], -dn[:, 1], -dn[:, 2])
+        val = em.eval(si)
+        theirs = np.stack([np.asarray(val[i]) for i in range(3)], 1)
+    assert np.abs(env.eval(d).numpy() - theirs).max() < 1e-4
+
+
+def test_z_up_puts_the_zenith_on_plus_z():
+    data = np.zeros((5, 8, 3), np.float32)
+    data[0] = 7.0                                       # the zenith row
+    env = EnvironmentLight(data, to_world=z_up(20.0))
+    assert env.eval(torch.tensor([[0.0, 0.0, 1.0]], dtype=torch.float64)).tolist() == [[7.0, 7.0, 7.0]]
+    assert float(env.eval(torch.tensor([[0.0, 0.0, -1.0]], dtype=torch.float64)).max()) == 0.0
+
+
+def test_sampling_density_matches_its_samples():
+    env = EnvironmentLight(_random_map(16, 32), to_world=z_up())
+    d, pdf = env.sample(100_000, torch.Generator().manual_seed(0))
+    assert torch.allclose(env.pdf(d), pdf, rtol=1e-6)
+    assert abs(float((1 / pdf).mean()) / (4 * math.pi) - 1) < 0.01          # E[1 / p] = the sphere's area
+    L = env.eval(d)
+    u = _dirs(400_000, 1)
+    assert torch.allclose((L / pdf[:, None]).mean(0), env.eval(u).mean(0) * 4 * math.pi, rtol=0.01)
+
+
+def test_equal_by_content():
+    a, b = EnvironmentLight(_random_map()), EnvironmentLight(_random_map())
+    assert a == b and hash(a) == hash(b)
+    assert a != EnvironmentLight(_random_map(), scale=2.0)
+
+
+@pytest.mark.parametrize("bad, words", [
+    (np.full((4, 8, 3), np.nan, np.float32), "NaN"),
+    (-np.ones((4, 8, 3), np.float32), "negative"),
+    (np.ones((2, 8, 3), np.float32), "at least 3 rows"),
+    (np.ones((4, 8), np.float32), "RGB"),
+])
+def test_bad_maps_are_refused(bad, words):
+    with pytest.raises(InputError, match=words):
+        EnvironmentLight(bad)
+
+
+def test_bad_to_world_and_files_are_refused(tmp_path):
+    with pytest.raises(InputError, match="not rigid"):
+        EnvironmentLight(np.ones((4, 8, 3), np.float32), to_world=np.diag([2.0, 1, 1, 1]))
+    with pytest.raises(InputError, match="not found"):
+        EnvironmentLight.from_file(tmp_path / "none.exr")
+    (tmp_path / "x.exr").write_bytes(b"\x89PNG not an exr")
+    with pytest.raises(InputError, match="not an HDR image"):
+        EnvironmentLight.from_file(tmp_path / "x.exr")
+
+
+def test_reads_exr_and_radiance_hdr(tmp_path):
+    import cv2
+
+    from bayes_brdf.io import write_exr
+    data = _random_map(8, 16)
+    write_exr(tmp_path / "e.exr", torch.from_numpy(data))
+    cv2.imwrite(str(tmp_path / "e.hdr"), data[..., ::-1].copy())
+    a = EnvironmentLight.from_file(tmp_path / "e.exr")
+    b = EnvironmentLight.from_file(tmp_path / "e.hdr")
+    assert torch.allclose(a.radiance, torch.from_numpy(data))
+    assert torch.allclose(b.radiance, torch.from_numpy(data), atol=0.02)      # RGBE: 8-bit mantissas, one exponent
+
+
+# ---------------------------------------------------------------------- the transfer
+def _pixels(n, seed=3):
+    g = torch.Generator().manual_seed(seed)
+    th = torch.rand(n, generator=g, dtype=torch.float64) * 1.3
+    ph = torch.rand(n, generator=g, dtype=torch.float64) * 2 * math.pi
+    v = torch.stack([th.sin() * ph.cos(), th.sin() * ph.sin(), th.cos()])[:, None]     # [3, 1, n]
+    up = torch.tensor([0, 0, 1.0], dtype=torch.float64)[:, None, None].expand(3, 1, n)
+    return torch.zeros(3, 1, n, dtype=torch.float64), up, v, torch.ones(1, n, dtype=torch.bool)
+
+
+def _brute_force(env, v, kd, r, ks, grid=(1024, 4096)):
+    """Radiance of a plane (normal +z) seen from ``v [3, 1, n]``: the BRDF times the environment summed over a
+    dense grid of directions of the upper hemisphere (midpoint rule in theta, phi)."""
+    from bayes_brdf.render.brdf import microfacet
+    nt, nphi = grid
+    th = (torch.arange(nt, dtype=torch.float64) + 0.5) / nt * (math.pi / 2)
+    ph = (torch.arange(nphi, dtype=torch.float64) + 0.5) / nphi * 2 * math.pi
+    T, Ph = torch.meshgrid(th, ph, indexing="ij")
+    l = torch.stack([T.sin() * Ph.cos(), T.sin() * Ph.sin(), T.cos()], -1).reshape(-1, 3)
+    dw = ((math.pi / 2 / nt) * (2 * math.pi / nphi) * T.sin()).reshape(-1)
+    L = env.eval(l)
+    out = []
+    for k in range(v.shape[-1]):
+        vv = v[:, 0, k]
+        h = l + vv
+        h = h / h.norm(dim=1, keepdim=True)
+        nl, nv, nh, vh = l[:, 2], vv[2].expand(l.shape[0]), h[:, 2], (h @ vv).clamp_min(1e-8)
+        f = microfacet(torch.tensor(kd, dtype=torch.float64), torch.tensor(r, dtype=torch.float64),
+                       torch.tensor(ks, dtype=torch.float64), nl[:, None], nv[:, None], nh[:, None], vh[:, None])
+        out.append((f * L * (nl * dw)[:, None]).sum(0))
+    return torch.stack(out)                                     # [n, 3]
+
+
+def test_white_environment_on_a_plane_is_pi_irradiance_and_the_brdfs_albedo():
+    env = EnvironmentLight(torch.ones(16, 32, 3))
+    pos, up, v, mask = _pixels(6)
+    e = transfer(env, pos, up, up, v, mask, PlanarSample())
+    assert torch.allclose(e[0:3], torch.full_like(e[0:3], math.pi), rtol=1e-3)
+    for r in (0.2, 0.5, 1.0):
+        E, a, b = interpolate(e, torch.full((1, 1, 6), r, dtype=torch.float64))
+        ours = (0.5 * (1 - 0.04) / math.pi * E + 0.04 * a + b)[:, 0].T
+        assert torch.allclose(ours, _brute_force(env, v, 0.5, r, 0.04, (512, 1024)), rtol=0.01), r
+
+
+@pytest.mark.slow
+def test_transfer_matches_brute_force_quadrature_under_a_real_environment(shared_data):
+    env = EnvironmentLight.from_file(shared_data / "psdr_assets" / BALLROOM, to_world=z_up(30.0))
+    pos, up, v, mask = _pixels(4)
+    e = transfer(env, pos, up, up, v, mask, PlanarSample())
+    for r, ks in ((0.3, 0.04), (0.6, 0.5), (1.0, 0.04)):
+        E, a, b = interpolate(e, torch.full((1, 1, 4), r, dtype=torch.float64))
+        ours = (0.5 * (1 - ks) / math.pi * E + ks * a + b)[:, 0].T
+        truth = _brute_force(env, v, 0.5, r, ks)
+        assert float((ours - truth).abs().max() / truth.max()) < 0.01, (r, ks)
+
+
+def _sphere_on_plane(radius=0.5, size=8.0):
+    plane, ball = Mesh.plane(size), Mesh.sphere(radius, center=(0.0, 0.0, radius), rings=48, segments=96)
+    n0 = plane.vertices.shape[0]
+    return Mesh(vertices=np.concatenate([plane.vertices, ball.vertices]),
+                faces=np.concatenate([plane.faces, ball.faces + n0]),
+                uv=np.concatenate([plane.uv, ball.uv]), normals=np.concatenate([plane.normals, ball.normals]),
+                name="sphere_on_plane")
+
+
+@pytest.mark.needs_llvm
+def test_shadow_of_a_sphere_on_a_plane_is_the_closed_form():
+    """Under a white sky of radiance 1, a point of the ground at distance D from the centre of a sphere of
+    radius rho resting on it loses the cosine-weighted solid angle of the sphere's cap,
+    ``pi sin^2(beta) cos(theta_c)`` with ``sin(beta) = rho / D`` and ``cos(theta_c) = rho / D``."""
+    rho = 0.5
+    mesh = _sphere_on_plane(rho)
+    env = EnvironmentLight(torch.ones(16, 32, 3))
+    x = torch.tensor([0.8, 1.1, 1.5, 2.0, 3.0], dtype=torch.float64)
+    pos = torch.stack([x, torch.zeros_like(x), torch.zeros_like(x)])[:, None]
+    up = torch.tensor([0, 0, 1.0], dtype=torch.float64)[:, None, None].expand(3, 1, len(x))
+    v = torch.tensor([0.3, 0.0, 1.0], dtype=torch.float64)
+    v = (v / v.norm())[:, None, None].expand(3, 1, len(x))
+    e = transfer(env, pos, up, up, v, torch.ones(1, len(x), dtype=torch.bool), mesh)
+    D2 = x * x + rho * rho
+    closed = math.pi - math.pi * (rho * rho / D2) * (rho / D2.sqrt())
+    assert torch.allclose(e[0, 0], closed, rtol=0.01)
+    assert bool((e[0, 0] < math.pi - 1e-3).all())
+
+
+# ---------------------------------------------------------------------- shading with it
+def _views(env, flash=True, n=3, res=16):
+    vs = collocated_views(n, 3.0, resolution=res, power=5)
+    return [View(v.camera, (v.lights if flash else ()) + (env,), name=v.name) for v in vs]
+
+
+def test_an_environment_adds_to_the_flash_and_gradients_are_exact():
+    env = EnvironmentLight(_random_map(16, 32), to_world=z_up())
+    both = GBuffer.build(_views(env), PlanarSample(2.0), dtype=torch.float64)
+    flash = GBuffer.build(collocated_views(3, 3.0, resolution=16, power=5), PlanarSample(2.0), dtype=torch.float64)
+    alone = GBuffer.build(_views(env, flash=False), PlanarSample(2.0), dtype=torch.float64)
+    m = SVBRDF.constant(albedo=0.5, roughness=0.3).to(torch.float64)
+    assert torch.allclose(shade(m, both), shade(m, flash) + shade(m, alone), atol=1e-12)
+    R = 6
+    g = torch.Generator().manual_seed(0)
+    flat = torch.tensor([0, 0, 1.0], dtype=torch.float64)[:, None, None].expand(3, R, R)
+    maps = SVBRDF(torch.rand(3, R, R, generator=g, dtype=torch.float64),
+                  0.1 + 0.8 * torch.rand(1, R, R, generator=g, dtype=torch.float64),
+                  torch.full((3, R, R), 0.04, dtype=torch.float64), flat)
+    y = shade(maps, both)[0] * 1.1
+
+    def loss(a, r, s):
+        return shade_loss(SVBRDF(a, r, s, flat), both, y, kind="l2")
+
+    args = [t.clone().requires_grad_() for t in (maps.albedo, maps.roughness, maps.specular)]
+    assert torch.autograd.gradcheck(loss, args, eps=1e-6, atol=1e-6, rtol=1e-3)
+
+
+def test_normals_that_the_transfer_cannot_follow_are_refused():
+    env = EnvironmentLight(_random_map(8, 16))
+    g = GBuffer.build(_views(env, n=1, res=8), PlanarSample(2.0))
+    n = torch.tensor([0.3, 0.0, 1.0])[:, None, None].expand(3, 4, 4) / math.sqrt(1.09)
+    with pytest.raises(InputError, match="normal map must be flat"):
+        shade(SVBRDF(torch.full((3, 4, 4), 0.5), torch.full((1, 4, 4), 0.4), torch.full((3, 4, 4), 0.04), n), g)
+
+
+def test_scene_with_an_environment_saves_and_loads():
+    env = EnvironmentLight(_random_map(8, 16), scale=3.0, to_world=z_up(10.0), name="room")
+    sc = Scene(PlanarSample(2.0), tuple(_views(env, n=2, res=8)))
+    meta, tensors = sc.state()
+    back = Scene.from_state(meta, tensors)
+    assert back == sc and back.views[0].environment == env
+    with pytest.raises(InputError, match="missing"):
+        Scene.from_state(meta, {})
+
+
+def test_irradiance_of_a_real_map_matches_quadrature(shared_data):
+    env = EnvironmentLight.from_file(shared_data / "psdr_assets" / BALLROOM, to_world=z_up(30.0))
+    n = _dirs(12, 5)
+    h, w, _ = env.radiance.shape
+    uu = (torch.arange(2 * w, dtype=torch.float64) + 0.5) / (2 * w)
+    vv = (torch.arange(2 * h, dtype=torch.float64) + 0.5) / (2 * h)
+    uv = torch.stack(torch.meshgrid(uu, vv, indexing="xy"), -1).reshape(-1, 2)
+    d = env.from_uv(uv)
+    L = env.eval(d) * ((2 * math.pi / (2 * w)) * (math.pi / (2 * h)) * (uv[:, 1] * math.pi).sin())[:, None]
+    exact = ((d @ n.T).clamp_min(0).T @ L)
+    assert torch.allclose(irradiance(env, n), exact, rtol=2e-3)
