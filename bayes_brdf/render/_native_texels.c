@@ -22,15 +22,19 @@
  *         lidx int32 [P, 4] the row (within its chunk) of each tap; rptr [T + 1], rsrc int32 [rows]:
  *         the rows of texel t are rsrc[rptr[t] .. rptr[t + 1]), in chunk order
  *   out [n, V, 3, P] (images), epart [n, nchunk] (energies), gkd, gr, gks shaped like kd, r, ks
+ *   env [V, P, 3 + 6 (nodes + 2)] or NULL: an environment light's precomputed terms (transfer.py): E, then per
+ *       roughness slot a, b (a ghost slot at each end), read by Catmull-Rom in log r (nodes at t0 + k dt)
  * Returns 0, or 1 when its scratch memory could not be allocated.
  */
 #include <omp.h>
 #include <stdint.h>
 #include <stdlib.h>
 #include <string.h>
+#include <math.h>
 
 #include "_native_brdf.h"
 
+#define LOG(x) (sizeof(REAL) == sizeof(float) ? logf((float)(x)) : log((double)(x)))
 #define LANES 8 /* particles per vector (AVX2 floats; doubles take two registers) */
 #define LMAX 4  /* lights per view (the caller checks) */
 #define TILE 16 /* texels per step of the layout passes */
@@ -63,7 +67,43 @@ struct targs {
     REAL *G;           /* gradient rows [rows][nch][np] */
     REAL *GC;          /* constant channels' gradient sums per chunk [nchunk][7][np] */
     double *ES;        /* energies per chunk [nchunk][np] */
+    const REAL *env;   /* environment terms per pixel [V][P][ech] (E rgb, then slots of a rgb, b rgb) or 0 */
+    int64_t nodes, ech;
+    double t0, dt;     /* roughness node k at log r = t0 + k dt */
 };
+
+/* Catmull-Rom in log r of the environment's tables at the lanes' roughness: values and d/dr of a, b */
+static inline void env_lookup(const struct targs *restrict q, const REAL *restrict ep, const vec rr,
+                              vec va[6], vec vd[6])
+{
+    const int64_t N = q->nodes;
+    REAL xa[6][LANES], xd[6][LANES], tt[LANES], dd[LANES];
+    const REAL t0 = (REAL)q->t0, idt = (REAL)(1.0 / q->dt), top = (REAL)(N - 1);
+#pragma omp simd
+    for (int i = 0; i < LANES; i++) {   /* node coordinate of every lane at once (a vector log) */
+        const REAL r = rr[i] > (REAL)1e-30 ? rr[i] : (REAL)1e-30;
+        const REAL t = (LOG(r) - t0) * idt;
+        tt[i] = t <= 0 ? 0 : (t >= top ? top : t);
+        dd[i] = (t <= 0 || t >= top) ? 0 : idt / r;
+    }
+    for (int i = 0; i < LANES; i++) {
+        const REAL t = tt[i], ds = dd[i];
+        int64_t k = (int64_t)t;
+        if (k > N - 2) k = N - 2;
+        const REAL x = t - (REAL)k, x2 = x * x, x3 = x2 * x;
+        const REAL w0 = (REAL)0.5 * (-x + 2 * x2 - x3), w1 = (REAL)0.5 * (2 - 5 * x2 + 3 * x3),
+                   w2 = (REAL)0.5 * (x + 4 * x2 - 3 * x3), w3 = (REAL)0.5 * (x3 - x2);
+        const REAL d0 = (REAL)0.5 * (-1 + 4 * x - 3 * x2) * ds, d1 = (REAL)0.5 * (-10 * x + 9 * x2) * ds,
+                   d2 = (REAL)0.5 * (1 + 8 * x - 9 * x2) * ds, d3 = (REAL)0.5 * (3 * x2 - 2 * x) * ds;
+        const REAL *tb = ep + 3 + k * 6;
+        for (int c = 0; c < 6; c++) {
+            const REAL f0 = tb[c], f1 = tb[6 + c], f2 = tb[12 + c], f3 = tb[18 + c];
+            xa[c][i] = w0 * f0 + w1 * f1 + w2 * f2 + w3 * f3;
+            xd[c][i] = d0 * f0 + d1 * f1 + d2 * f2 + d3 * f3;
+        }
+    }
+    for (int c = 0; c < 6; c++) { va[c] = LD(xa[c]); vd[c] = LD(xd[c]); }
+}
 
 static void chunk(const struct targs *restrict q, const int64_t c)
 {
@@ -96,6 +136,16 @@ static void chunk(const struct targs *restrict q, const int64_t c)
             for (int64_t v = 0; v < V; v++) {
                 const REAL nv = q->nv[v * P + p];
                 vec o0 = {0}, o1 = {0}, o2 = {0}, g0 = {0}, g1 = {0}, g2 = {0}, sS[LMAX], sD[LMAX];
+                vec ea[6], ed[6];
+                REAL E0 = 0, E1 = 0, E2 = 0;
+                if (q->env) {   /* the environment: kd (1 - kf ks) / pi E + ks a(r) + b(r) */
+                    const REAL *ep = q->env + (v * P + p) * q->ech;
+                    E0 = ep[0] * BB_INV_PI; E1 = ep[1] * BB_INV_PI; E2 = ep[2] * BB_INV_PI;
+                    env_lookup(q, ep, rr, ea, ed);
+                    o0 += kd0 * (1 - kf * ks0) * E0 + ks0 * ea[0] + ea[3];
+                    o1 += kd1 * (1 - kf * ks1) * E1 + ks1 * ea[1] + ea[4];
+                    o2 += kd2 * (1 - kf * ks2) * E2 + ks2 * ea[2] + ea[5];
+                }
                 for (int64_t l = 0; l < L; l++) {
                     const int64_t vl = v * L + l;
                     const REAL nl = q->nl[vl * P + p], nh2 = q->nh2[vl * P + p], wj = q->w[vl * P + p];
@@ -132,6 +182,12 @@ static void chunk(const struct targs *restrict q, const int64_t c)
                     }
                 }
                 if (!grad) continue;
+                if (q->env) {
+                    akd0 += g0 * (1 - kf * ks0) * E0; akd1 += g1 * (1 - kf * ks1) * E1; akd2 += g2 * (1 - kf * ks2) * E2;
+                    aks0 += g0 * (ea[0] - kf * kd0 * E0); aks1 += g1 * (ea[1] - kf * kd1 * E1);
+                    aks2 += g2 * (ea[2] - kf * kd2 * E2);
+                    ar += g0 * (ks0 * ed[0] + ed[3]) + g1 * (ks1 * ed[1] + ed[4]) + g2 * (ks2 * ed[2] + ed[5]);
+                }
                 for (int64_t l = 0; l < L; l++) {
                     const int64_t vl = v * L + l;
                     const REAL wj = q->w[vl * P + p], *A = q->amp + vl * 3 * P + p;
@@ -169,12 +225,14 @@ int bb_shade_texels(int64_t mode, int64_t n, int64_t V, int64_t L, int64_t P, in
                     const REAL *kd, const REAL *r, const REAL *ks,
                     const REAL *nl, const REAL *nv, const REAL *nh2, const REAL *w, const REAL *amp,
                     const REAL *y, const REAL *wgt, const REAL *gout,
-                    REAL *out, double *epart, REAL *gkd, REAL *gr, REAL *gks)
+                    REAL *out, double *epart, REAL *gkd, REAL *gr, REAL *gks,
+                    const REAL *env, int64_t nodes, double t0, double dt)
 {
     const int64_t np = (n + LANES - 1) / LANES * LANES;
     struct targs q = {mode, n, V, L, P, T, l2, (mode == MODE_IMAGE_BWD) || (mode == MODE_LOSS && need_grad),
                       flags, np, 0, 0, nchunk, ks_factor ? (REAL)1 : (REAL)0, tidx, lidx, tw, cstart, uoff,
-                      nl, nv, nh2, w, amp, y, wgt, gout, out, {0}, 0, 0, 0, 0, 0};
+                      nl, nv, nh2, w, amp, y, wgt, gout, out, {0}, 0, 0, 0, 0, 0,
+                      env, nodes, 3 + 6 * (nodes + 2), t0, dt};
     const REAL *src[7];    /* channel ch of particle i: src[ch][i * stride[ch] + t] */
     int64_t stride[7];
     REAL *dst[7];

@@ -172,6 +172,8 @@ def compiled_kernel(kd, r, ks, nl, nv, nh, vh, scale, ks_factor: bool = True, to
     light's terms (the eager kernel shades them)."""
     if env is not None:
         if taps is not None:
+            if _texel_route(kd, r, ks, nl, nv, nh, vh, scale, taps) == "native" and not env.requires_grad:
+                return native.NativeShade.apply(kd, r, ks, nl, nv, nh, vh, scale, ks_factor, taps, env)
             kd, r, ks = _looked_up(taps, kd, r, ks)
         return eager_kernel(kd, r, ks, nl, nv, nh, vh, scale, ks_factor, env=env)
     if taps is not None:
@@ -327,6 +329,9 @@ def compiled_loss(kd, r, ks, nl, nv, nh, vh, scale, y, wgt, ks_factor: bool = Tr
     ``taps`` and ``env`` as there)."""
     if env is not None:
         if taps is not None:
+            if not (y.requires_grad or wgt.requires_grad or env.requires_grad) and \
+                    _texel_route(kd, r, ks, nl, nv, nh, vh, scale, taps) == "native":
+                return native.NativeLoss.apply(kd, r, ks, nl, nv, nh, vh, scale, y, wgt, ks_factor, l1, taps, env)
             kd, r, ks = _looked_up(taps, kd, r, ks)
         return eager_loss(kd, r, ks, nl, nv, nh, vh, scale, y, wgt, ks_factor, l1, env=env)
     if taps is not None:

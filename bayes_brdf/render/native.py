@@ -36,6 +36,8 @@ from pathlib import Path
 import torch
 from torch import Tensor
 
+from . import transfer
+
 _DIR = Path(__file__).parent
 _LOCK = threading.Lock()
 _FUNCTIONS: dict = {}
@@ -116,7 +118,8 @@ def _lib(dtype: torch.dtype):
 def _texel_lib(dtype: torch.dtype):
     """The texel kernel for ``dtype``, or ``None`` when native kernels are unavailable."""
     return native_function(_DIR / "_native_texels.c", "bb_shade_texels", dtype,
-                           [ctypes.c_int64] * 12 + [ctypes.c_void_p] * 23, restype=ctypes.c_int,
+                           [ctypes.c_int64] * 12 + [ctypes.c_void_p] * 24 + [ctypes.c_int64, ctypes.c_double,
+                                                                               ctypes.c_double], restype=ctypes.c_int,
                            fallback="sparse torch lookups")
 
 
@@ -131,7 +134,7 @@ def _ptr(t: Tensor | None):
 
 
 def _call(mode, maps, geo, ks_factor, *, y=None, wgt=None, gout=None, l2=False, need_grad=False, taps=None,
-          no_grad=(False, False, False)):
+          no_grad=(False, False, False), env=None):
     """Run a kernel. ``maps = (kd [n,3,P], r [n,P], ks [n,3,P])``, ``geo = (nl, nv, nh2, w, A)``; with
     ``taps`` (:class:`~bayes_brdf.render.texels.Taps` of the ``P`` pixels) the maps are texel maps
     ``[n, 3, T]``, ``[n, T]`` (or one constant texel, ``[n, 3, 1]``) read bilinearly by the texel kernel, and
@@ -162,7 +165,8 @@ def _call(mode, maps, geo, ks_factor, *, y=None, wgt=None, gout=None, l2=False, 
         else [None, None, None]
     status = _texel_lib(dt)(mode, n, V, L, P, int(ks_factor), int(l2), int(need_grad), nt, T, flags, plan.nchunk,
                             *map(_ptr, (taps.idx, taps.w, plan.cstart, plan.uoff, plan.lidx, plan.rptr, plan.rsrc,
-                                        kd, r, ks, nl, nv, nh2, w, amp, y, wgt, gout, out, epart, *grads)))
+                                        kd, r, ks, nl, nv, nh2, w, amp, y, wgt, gout, out, epart, *grads, env)),
+                            transfer.NODES, transfer.T0, transfer.DT)
     if status:
         raise MemoryError(f"the native texel kernel could not allocate its scratch memory ({n} particles, "
                           f"{T} texels, {P} pixels)")
@@ -186,8 +190,9 @@ def _geometry(nl, nv, nh, vh, scale):
     if hit is not None and all(a is b for a, b in zip(hit[0], (nl, nv, nh, vh, scale))):
         return hit[1]
     V, L = nl.shape[1:3]
-    geo = (nl.reshape(V, L, -1).contiguous(), nv.reshape(V, -1).contiguous(), (nh * nh).reshape(V, L, -1).contiguous(),
-           fresnel_weight(vh).reshape(V, L, -1).contiguous(), (scale * nl).reshape(V, L, 3, -1).contiguous())
+    P = nv.shape[-2] * nv.shape[-1]          # explicit: a view lit by an environment alone has no point light (L = 0)
+    geo = (nl.reshape(V, L, P).contiguous(), nv.reshape(V, P).contiguous(), (nh * nh).reshape(V, L, P).contiguous(),
+           fresnel_weight(vh).reshape(V, L, P).contiguous(), (scale * nl).reshape(V, L, 3, P).contiguous())
     _GEO[key] = ((nl, nv, nh, vh, scale), geo)
     while len(_GEO) > 16:
         _GEO.popitem(last=False)
@@ -205,6 +210,24 @@ def prepare(kd, r, ks, nl, nv, nh, vh, scale, hw, texels=None):
     return n, maps, _geometry(nl, nv, nh, vh, scale)
 
 
+_ENV: OrderedDict = OrderedDict()
+
+
+def env_layout(env: Tensor | None) -> Tensor | None:
+    """An environment's terms ``[1, V, C, 1, P]`` in the texel kernel's layout ``[V, P, C]`` (kept while the
+    same tensor comes again)."""
+    if env is None:
+        return None
+    hit = _ENV.get(id(env))
+    if hit is not None and hit[0] is env:
+        return hit[1]
+    out = env[0, :, :, 0, :].transpose(1, 2).contiguous()
+    _ENV[id(env)] = (env, out)
+    while len(_ENV) > 8:
+        _ENV.popitem(last=False)
+    return out
+
+
 def texel_maps(t: Tensor) -> Tensor:
     """A texel map ``[n, C, Ht, Wt]`` (or ``[C, Ht, Wt]``) in the kernels' map layout ``[n, 1, C, Ht, Wt]``."""
     return (t[None] if t.dim() == 3 else t)[:, None]
@@ -214,37 +237,38 @@ class NativeShade(torch.autograd.Function):
     """Images ``[n, V, 3, H, W]`` with analytic gradients w.r.t. ``kd, r, ks``."""
 
     @staticmethod
-    def forward(ctx, kd, r, ks, nl, nv, nh, vh, scale, ks_factor, taps=None):
+    def forward(ctx, kd, r, ks, nl, nv, nh, vh, scale, ks_factor, taps=None, env=None):
         hw = nl.shape[-2:]
         n, maps, geo = prepare(kd, r, ks, nl, nv, nh, vh, scale, hw, None if taps is None else taps.grid)
-        out, _, _ = _call(MODE_IMAGE_FWD, maps, geo, ks_factor, taps=taps)
+        ev = env_layout(env)
+        out, _, _ = _call(MODE_IMAGE_FWD, maps, geo, ks_factor, taps=taps, env=ev)
         ctx.save_for_backward(*maps, *geo)
-        ctx.meta = (ks_factor, taps, kd.shape, r.shape, ks.shape)
+        ctx.meta = (ks_factor, taps, kd.shape, r.shape, ks.shape, ev)
         return out.reshape(n, geo[0].shape[0], 3, *hw)
 
     @staticmethod
     def backward(ctx, gout):
-        ks_factor, tp, *shapes = ctx.meta
+        ks_factor, tp, *shapes, ev = ctx.meta
         saved = ctx.saved_tensors
         n = saved[1].shape[0]
         g = gout.reshape(n, gout.shape[1], 3, -1).contiguous()
         _, _, grads = _call(MODE_IMAGE_BWD, saved[:3], saved[3:], ks_factor, gout=g, taps=tp,
-                            no_grad=tuple(not f for f in ctx.needs_input_grad[:3]))
-        return (*_unflat(grads, shapes), None, None, None, None, None, None, None)
+                            no_grad=tuple(not f for f in ctx.needs_input_grad[:3]), env=ev)
+        return (*_unflat(grads, shapes), None, None, None, None, None, None, None, None)
 
 
 class NativeLoss(torch.autograd.Function):
     """Per-particle loss ``[n]``; the gradient is computed in the same pass as the loss."""
 
     @staticmethod
-    def forward(ctx, kd, r, ks, nl, nv, nh, vh, scale, y, wgt, ks_factor, l1, taps=None):
+    def forward(ctx, kd, r, ks, nl, nv, nh, vh, scale, y, wgt, ks_factor, l1, taps=None, env=None):
         hw = nl.shape[-2:]
         n, maps, geo = prepare(kd, r, ks, nl, nv, nh, vh, scale, hw, None if taps is None else taps.grid)
         need = any(ctx.needs_input_grad[:3])
         yy = y.reshape(y.shape[0], 3, -1).contiguous()
         ww = wgt.expand(y.shape[0], 1, *hw).reshape(y.shape[0], -1).contiguous()
         _, epart, grads = _call(MODE_LOSS, maps, geo, ks_factor, y=yy, wgt=ww, l2=not l1, need_grad=need,
-                                taps=taps, no_grad=tuple(not f for f in ctx.needs_input_grad[:3]))
+                                taps=taps, no_grad=tuple(not f for f in ctx.needs_input_grad[:3]), env=env_layout(env))
         if need:
             ctx.save_for_backward(*grads)
         ctx.shapes = (kd.shape, r.shape, ks.shape)
@@ -257,7 +281,7 @@ class NativeLoss(torch.autograd.Function):
             ge = ge.to(gkd.dtype)
             gkd, gr, gks = gkd * ge[:, None, None], gr * ge[:, None], gks * ge[:, None, None]
         grads = (gkd, gr, gks)
-        return (*_unflat(grads, ctx.shapes), *(None,) * 10)
+        return (*_unflat(grads, ctx.shapes), *(None,) * 11)
 
 
 def _unflat(grads, shapes):

@@ -247,3 +247,35 @@ def test_irradiance_of_a_real_map_matches_quadrature(shared_data):
     L = env.eval(d) * ((2 * math.pi / (2 * w)) * (math.pi / (2 * h)) * (uv[:, 1] * math.pi).sin())[:, None]
     exact = ((d @ n.T).clamp_min(0).T @ L)
     assert torch.allclose(irradiance(env, n), exact, rtol=2e-3)
+
+
+@pytest.mark.needs_llvm
+@pytest.mark.needs_native(kernel="texels")
+@pytest.mark.parametrize("dtype, tol", [(torch.float64, 1e-12), (torch.float32, 1e-4)])
+def test_native_texel_kernel_shades_the_environment_as_the_reference(dtype, tol):
+    """The fast path (the C texel kernel reading the tables) against the eager torch reference, on a mesh with a
+    flash and an environment: images, losses and their gradients."""
+    from bayes_brdf.render.mitsuba_reference import check_views
+    mesh = Mesh.block_on_plane()
+    env = EnvironmentLight(_random_map(16, 32), to_world=z_up(10.0))
+    views = [View(v.camera, v.lights + (env,), name=v.name) for v in check_views(mesh, "block_on_plane", 24)]
+    g = GBuffer.build(views, mesh, dtype=dtype)
+    R, n = 48, 3
+    gen = torch.Generator().manual_seed(0)
+    flat = torch.tensor([0, 0, 1.0], dtype=dtype)[:, None, None].expand(3, R, R)
+    kd = torch.rand(n, 3, R, R, generator=gen, dtype=dtype)
+    r = 0.01 + 1.1 * torch.rand(n, 1, R, R, generator=gen, dtype=dtype)       # past both ends of the tables
+    ks = 0.04 + 0.3 * torch.rand(n, 3, R, R, generator=gen, dtype=dtype)
+    ref = shade(SVBRDF(kd, r, ks, flat), g, backend="eager")
+    assert float((shade(SVBRDF(kd, r, ks, flat), g) - ref).abs().max() / ref.abs().max()) < tol
+    y = ref[0] * 1.05
+    out = []
+    for backend in ("eager", "auto"):
+        ps = [t.clone().requires_grad_() for t in (kd, r, ks)]
+        loss = shade_loss(SVBRDF(*ps, flat), g, y, kind="l1", backend=backend)
+        loss.sum().backward()
+        out.append((loss.detach(), [p.grad for p in ps]))
+    (la, ga), (lb, gb) = out
+    assert torch.allclose(la, lb, rtol=tol)
+    for a, b in zip(ga, gb):
+        assert float((a - b).abs().max() / a.abs().max()) < 10 * tol
