@@ -432,7 +432,8 @@ def describe(obs: Observations) -> str:
     Lists the format and source, number of views, resolution (and native
     resolution), sample size in cm (for a mesh: its name, faces, centre,
     bounding radius and file), gamma, and per view: camera and light
-    positions with their distance to the sample (or mesh) centre, light power, min /
+    positions with their distance to the sample (or mesh) centre, light power, the environment light
+    (map name, size, scale) if any, min /
     mean / max of the linear pixel values, and the fraction of saturated pixels.
 
     Example:
@@ -466,8 +467,12 @@ def describe(obs: Observations) -> str:
         line = (f"  [{i}] {v.name or '-':>4}  camera {_fmt3(c)} d={math.dist(c, centre):.3g}{units}")
         if hasattr(v.camera, "fov"):
             line += f" fov {v.camera.fov:.3g}"
-        for li in v.lights:
+        for li in v.point_lights:
             line += f"  light {_fmt3(li.position)} d={math.dist(li.position, centre):.3g}{units} power {_fmt3(li.power)}"
+        env = v.environment
+        if env is not None:
+            eh, ew = env.radiance.shape[:2]
+            line += f"  environment {env.name or env.digest} {ew}x{eh} scale {env.scale:g}"
         line += f"  linear min/mean/max {x.min():.4g}/{x.mean():.4g}/{x.max():.4g}"
         if sat is not None:
             line += f"  saturated {100 * float(sat[i].float().mean()):.2f}%"

@@ -39,11 +39,19 @@ nerfstudio), extended with the mesh, the length unit and the light::
 * ``up`` (default ``"z"``) -- the world up axis of poses and mesh: ``"z"``,
   ``"y"`` (``(x, y, z) -> (x, -z, y)``), ``"-y"`` or ``"-z"``; poses, lights
   and mesh are rotated to z-up together.
-* The light: ``"light": {"type": "collocated", "power": [r, g, b]}`` (a flash
-  at each camera), ``"light": {"type": "point", "position": [x, y, z],
-  "power": ...}`` (one fixed light), or per frame ``light_position`` (+
-  ``light_power``, else the top-level light's power): a point light. A frame's
-  ``light_power`` alone changes the power of the top-level light for that frame.
+* The lights: ``"light"`` (one light object) or ``"lights"`` (a list of them), at the top level (every
+  frame) or per frame (a frame's own ``light`` / ``lights`` replace the top level's). Light objects:
+  ``{"type": "collocated", "power": [r, g, b]}`` (a flash at the frame's camera; ``type`` defaults to
+  collocated), ``{"type": "point", "position": [x, y, z], "power": ...}`` (a fixed light) and
+  ``{"type": "environment", "map": "env.exr", "scale": 1.0, "to_world": [[4 x 4]]}`` (an equirectangular
+  OpenEXR or Radiance ``.hdr`` map at infinity, read as Mitsuba's ``envmap``: see
+  :class:`~bayes_brdf.render.environment.EnvironmentLight`; ``map`` relative to the JSON, each map read
+  once; ``scale`` default 1; ``to_world`` default the identity, a rotation (a mirror allowed) in the file's
+  world frame, turned with the poses by the ``up`` conversion; radiance is not changed by ``units``). At
+  most one environment per frame. The older per-frame ``light_position`` (+ ``light_power``, else the
+  top-level point light's power) is a point light that takes the place of the top-level point or collocated
+  light(s), keeping a top-level environment; a frame's ``light_power`` alone changes the power of the
+  top-level point or collocated light for that frame.
 
 Unknown keys (nerfstudio's ``applied_transform``, ``camera_model: "OPENCV"``
 with zero distortion, ...) are ignored.
@@ -82,25 +90,27 @@ def is_transforms_file(p: Path) -> bool:
 
 
 # ------------------------------------------------------------------ small parsers
-def _matrix(v, where, key: str) -> np.ndarray:
+def _matrix(v, where, key: str, *, mirror: bool = False, fix: str | None = None) -> np.ndarray:
+    """A finite rigid 4 x 4 at ``key``: orthonormal 3 x 3 within 1e-4 (a proper rotation unless ``mirror``), last
+    row ``0 0 0 1``."""
     ok = isinstance(v, (list, tuple)) and len(v) == 4 and all(isinstance(r, (list, tuple)) and len(r) == 4 for r in v)
     if not ok:
         shape = (f"{len(v)} rows" if isinstance(v, (list, tuple)) else type(v).__name__)
         raise InputError(f"{key} must be a 4x4 list of rows, got {shape}", where=where,
-                         fix="give the 4x4 camera-to-world matrix [[r00, r01, r02, tx], ..., [0, 0, 0, 1]]")
+                         fix=fix or "give the 4x4 camera-to-world matrix [[r00, r01, r02, tx], ..., [0, 0, 0, 1]]")
     m = np.array([[checks.finite(x, key, where=where) for x in r] for r in v])
     if np.abs(m[3] - (0, 0, 0, 1)).max() > 1e-6:
         raise InputError(f"{key} is not rigid (last row {m[3].tolist()}, expected [0, 0, 0, 1])", where=where,
-                         fix="give a camera-to-world rotation + translation")
+                         fix=fix or "give a camera-to-world rotation + translation")
     r = m[:3, :3]
     err = float(np.abs(r.T @ r - np.eye(3)).max())
     det = float(np.linalg.det(r))
-    if err > 1e-4 or det < 0:
+    if err > 1e-4 or (det < 0 and not mirror):
         why = (f"column norms {', '.join(f'{x:.4g}' for x in np.linalg.norm(r, axis=0))}" if err > 1e-4 else "")
         why = ", ".join(x for x in (why, f"max |R^T R - I| = {err:.2g}", f"det = {det:.4g}") if x)
         raise InputError(f"{key} is not rigid ({why})", where=where,
-                         fix="give an orthonormal right-handed rotation (no scale, no mirror) and put the "
-                             "scale into 'units'")
+                         fix=fix or "give an orthonormal right-handed rotation (no scale, no mirror) and put the "
+                                    "scale into 'units'")
     return m
 
 
@@ -238,60 +248,163 @@ def _read_mask(p: Path, shape, what: str, where) -> torch.Tensor:
     return torch.from_numpy(np.ascontiguousarray(raw[..., 0] > (full or 1.0) / 2))
 
 
-# ------------------------------------------------------------------ loading
-def _frame_light(top_light, frame: dict, i: int, cam_pos: np.ndarray, rot, s: float, where):
-    """``(position [3], power [3])`` in cm of frame ``i``'s light (``cam_pos`` already in cm)."""
+# ------------------------------------------------------------------ lights
+LIGHT_TYPES = ("collocated", "point", "environment")
+_LIGHT_FIX = ('use {"type": "collocated", "power": [r, g, b]}, {"type": "point", "position": [x, y, z], '
+              '"power": [r, g, b]} or {"type": "environment", "map": "env.exr"}')
+
+
+class _Lights:
+    """Reads the light objects of one transforms file: converted to cm and z-up, environment maps read once."""
+
+    def __init__(self, folder: Path, rot: np.ndarray, s: float, where):
+        self.folder, self.rot, self.s, self.where = folder, rot, s, where
+        self.maps: dict[Path, np.ndarray] = {}            # resolved map path -> radiance [H, W, 3]
+        self.envs: dict[tuple, object] = {}               # (path, scale, to_world) -> EnvironmentLight
+        self.used: list[str] = []                         # the maps' paths as written, in order of first use
+
+    def one(self, L, key: str):
+        """One light object at ``key`` as ``("collocated", power)``, ``("point", position, power)`` (cm, z-up,
+        power times s^2) or ``("environment", EnvironmentLight)``."""
+        if not isinstance(L, dict):
+            raise InputError(f"{key} must be an object, got {L!r}", where=self.where, fix=_LIGHT_FIX)
+        kind = L.get("type", "collocated")
+        if kind not in LIGHT_TYPES:
+            raise InputError(f"unknown {key}.type {kind!r}", where=self.where,
+                             fix=f"use one of {', '.join(LIGHT_TYPES)}")
+        if kind == "environment":
+            return ("environment", self._environment(L, key))
+        if "power" not in L:
+            raise InputError(f"{key}.power is missing", where=self.where, fix="give the light power [r, g, b]")
+        power = np.array(checks.rgb(L["power"], f"{key}.power", where=self.where)) * self.s ** 2
+        if kind == "collocated":
+            return ("collocated", power)
+        if "position" not in L:
+            raise InputError(f"{key}.position is missing for a point light", where=self.where,
+                             fix=f"give {key}.position [x, y, z] (in 'units'), or use type collocated")
+        pos = self.s * (self.rot @ np.array(checks.vec3(L["position"], f"{key}.position", where=self.where)))
+        return ("point", pos, power)
+
+    def _environment(self, L: dict, key: str):
+        from ..render.environment import EnvironmentLight
+
+        rel = L.get("map")
+        if not isinstance(rel, str) or not rel:
+            raise InputError(f"{key}.map must be the path of the environment map, got {rel!r}", where=self.where,
+                             fix=f'give {key}.map, e.g. "env.exr" (an OpenEXR or Radiance .hdr file, relative to '
+                                 "the transforms file)")
+        scale = checks.finite(L.get("scale", 1.0), f"{key}.scale", where=self.where)
+        if scale < 0:
+            raise InputError(f"{key}.scale must be >= 0, got {scale:g}", where=self.where)
+        m = np.eye(4)
+        if L.get("to_world") is not None:
+            m = _matrix(L["to_world"], self.where, f"{key}.to_world", mirror=True,
+                        fix="give the environment's to_world as a rotation (Mitsuba's envmap to_world, in the "
+                            "file's world frame), without scale or shear")
+        t = np.eye(4)                                     # file frame -> cm, z-up (as the poses)
+        t[:3, :3] = self.rot
+        m = t @ m
+        m[:3, 3] *= self.s
+        path = (self.folder / rel).resolve()
+        tw = tuple(tuple(float(x) for x in r) for r in m)
+        k = (path, scale, tw)
+        if k not in self.envs:
+            if path not in self.maps:
+                try:
+                    env = EnvironmentLight.from_file(path)
+                except InputError as e:
+                    raise InputError(f"{key}.map {rel!r}: {e.problem} ({path})", where=self.where, fix=e.fix) from None
+                self.maps[path] = env.radiance
+            self.envs[k] = EnvironmentLight(self.maps[path], scale, tw, name=Path(rel).name)
+            if rel not in self.used:
+                self.used.append(rel)
+        return self.envs[k]
+
+    def of(self, obj: dict, prefix: str):
+        """The lights an object (the file or one frame) gives with ``light`` / ``lights``, or ``None``."""
+        if "light" in obj and "lights" in obj:
+            raise InputError(f"{prefix}light and {prefix}lights are both given", where=self.where,
+                             fix="give one light object as 'light' or a list of them as 'lights'")
+        if "lights" in obj:
+            ls = obj["lights"]
+            if not isinstance(ls, list) or not ls:
+                raise InputError(f"{prefix}lights must be a non-empty list of light objects, got {ls!r}",
+                                 where=self.where, fix=_LIGHT_FIX)
+            out = [self.one(L, f"{prefix}lights[{j}]") for j, L in enumerate(ls)]
+        elif "light" in obj:
+            out = [self.one(obj["light"], f"{prefix}light")]
+        else:
+            return None
+        if sum(x[0] == "environment" for x in out) > 1:
+            raise InputError(f"{prefix}lights has more than one environment light", where=self.where,
+                             fix="merge the environment maps into one")
+        return out
+
+
+def _frame_lights(lights: _Lights, top, frame: dict, i: int, cam_pos: np.ndarray) -> tuple:
+    """Frame ``i``'s lights (``cam_pos`` already in cm): PointLights and at most one EnvironmentLight."""
+    where, s = lights.where, lights.s
+    own = lights.of(frame, f"frames[{i}].")
+    legacy = [k for k in ("light_position", "light_power") if k in frame]
+    if own is not None and legacy:
+        raise InputError(f"frames[{i}] gives both {'light' if 'light' in frame else 'lights'} and {legacy[0]}",
+                         where=where, fix=f"describe frames[{i}]'s lights one way: as light objects, or with "
+                                          "light_position / light_power")
+    specs = own if own is not None else list(top or [])
     fpow = None
     if "light_power" in frame:
-        fpow = np.array(checks.rgb(frame["light_power"], f"frames[{i}].light_power", where=where))
-    if "light_position" in frame:
-        pos = s * (rot @ np.array(checks.vec3(frame["light_position"], f"frames[{i}].light_position", where=where)))
-        power = fpow if fpow is not None else (top_light or {}).get("power")
-        if power is None:
+        fpow = np.array(checks.rgb(frame["light_power"], f"frames[{i}].light_power", where=where)) * s * s
+    points = [j for j, x in enumerate(specs) if x[0] != "environment"]
+    if legacy:
+        if "light_position" not in frame and not points:
+            raise InputError(f"frames[{i}] has a light_power but no light_position, and the top-level lights hold "
+                             "no point or collocated light", where=where,
+                             fix=f"add frames[{i}].light_position [x, y, z], or a top-level collocated light")
+        if fpow is None and len(points) != 1:
             raise InputError(f"frames[{i}] has a light_position but no light power", where=where,
                              fix=f"add frames[{i}].light_power [r, g, b], or a top-level light with a power")
-        return pos, power * s * s
-    if top_light is None:
+        if fpow is not None and "light_position" not in frame and len(points) > 1:
+            raise InputError(f"frames[{i}].light_power is ambiguous: the top-level lights hold {len(points)} point "
+                             "or collocated lights", where=where,
+                             fix=f"give frames[{i}] its own 'lights' list instead")
+        power = fpow if fpow is not None else specs[points[0]][-1]
+        if "light_position" in frame:
+            pos = s * (lights.rot @ np.array(checks.vec3(frame["light_position"], f"frames[{i}].light_position",
+                                                         where=where)))
+            new = ("point", pos, power)
+        else:
+            new = specs[points[0]][:-1] + (power,)
+        at = points[0] if points else 0                  # in the place of the top-level point light(s), else first
+        specs = [x for j, x in enumerate(specs) if j not in points]
+        specs.insert(min(at, len(specs)), new)
+    if not specs:
         raise InputError(f"no light for frames[{i}]", where=where,
-                         fix='add "light": {"type": "collocated", "power": [r, g, b]} (a flash at each camera) or '
-                             "per-frame light_position and light_power")
-    pos = cam_pos if top_light["type"] == "collocated" else top_light["position"]
-    return pos, (fpow if fpow is not None else top_light["power"]) * s * s
+                         fix='add "light": {"type": "collocated", "power": [r, g, b]} (a flash at each camera), '
+                             '"lights": [...], or per-frame light_position and light_power')
+    out = []
+    for x in specs:
+        if x[0] == "environment":
+            out.append(x[1])
+        else:
+            pos = cam_pos if x[0] == "collocated" else x[1]
+            out.append(PointLight(tuple(np.asarray(pos).tolist()), tuple(np.asarray(x[-1]).tolist())))
+    return tuple(out)
 
 
-def _top_light(d: dict, rot, s: float, where):
-    if "light" not in d:
-        return None
-    L = d["light"]
-    if not isinstance(L, dict):
-        raise InputError(f"'light' must be an object, got {L!r}", where=where,
-                         fix='use {"type": "collocated", "power": [r, g, b]}')
-    kind = L.get("type", "collocated")
-    if kind not in ("collocated", "point"):
-        raise InputError(f"unknown light.type {kind!r}", where=where, fix="use collocated or point")
-    if "power" not in L:
-        raise InputError("light.power is missing", where=where, fix="give the light power [r, g, b]")
-    out = {"type": kind, "power": np.array(checks.rgb(L["power"], "light.power", where=where))}
-    if kind == "point":
-        if "position" not in L:
-            raise InputError("light.position is missing for a point light", where=where,
-                             fix="give light.position [x, y, z] (in 'units'), or use type collocated")
-        out["position"] = s * (rot @ np.array(checks.vec3(L["position"], "light.position", where=where)))
-    return out
-
-
+# ------------------------------------------------------------------ loading
 def load_transforms(path, resolution=None, gamma=2.2, *, max_resolution=None) -> Observations:
     """Load a ``transforms.json`` capture (the file, or its folder) as :class:`~bayes_brdf.observations.Observations`.
 
     See the module docstring for the format. Returns one view per frame: a
     :class:`~bayes_brdf.render.cameras.PerspectiveCamera` (position = the
     matrix's translation, looking along its ``-z`` column with its ``+y``
-    column up; ``target`` one cm ahead) and one :class:`~bayes_brdf.render.lights.PointLight`,
-    all in cm and z-up; the surface is the :class:`~bayes_brdf.render.mesh.Mesh`
+    column up; ``target`` one cm ahead) and its lights (:class:`~bayes_brdf.render.lights.PointLight` s and at
+    most one :class:`~bayes_brdf.render.environment.EnvironmentLight`), all in cm and z-up; the surface is the :class:`~bayes_brdf.render.mesh.Mesh`
     (loaded with the file's ``units`` and ``up``); ``images [V, H, W, 3]``
     linear float32; ``mask`` (the frames' masks, else all True); ``saturated``;
     ``meta`` (format ``"transforms"``, source, units ``"cm"``, file units, up,
-    gamma, mesh, native resolution, image names).
+    gamma, mesh, native resolution, image names, and ``environment_maps``: the maps' paths as the file gives
+    them, when there are any).
 
     ``resolution``: an int ``R`` resamples every photo so that its LONGER side
     is ``R`` (the aspect ratio kept, sides rounded), an ``(H, W)`` pair to that
@@ -342,7 +455,8 @@ def load_transforms(path, resolution=None, gamma=2.2, *, max_resolution=None) ->
     if not isinstance(frames, list) or not frames:
         raise InputError("'frames' must be a non-empty list", where=jf,
                          fix="give one {file_path, transform_matrix} per photo")
-    top_light = _top_light(d, rot, s, jf)
+    lights = _Lights(folder, rot, s, jf)
+    top = lights.of(d, "")
     # pass 1: everything but the pixels (fails before decoding any photo)
     parsed = []
     for i, f in enumerate(frames):
@@ -371,9 +485,9 @@ def load_transforms(path, resolution=None, gamma=2.2, *, max_resolution=None) ->
         m = _matrix(f["transform_matrix"], jf, f"frames[{i}].transform_matrix")
         r = rot @ m[:3, :3]
         pos = s * (rot @ m[:3, 3])
-        lpos, lpow = _frame_light(top_light, f, i, pos, rot, s, jf)
         intr = _intrinsics(d, f, i, jf)
-        parsed.append({"image": img, "masks": masks, "R": r, "pos": pos, "light": (lpos, lpow), "intr": intr})
+        parsed.append({"image": img, "masks": masks, "R": r, "pos": pos, "intr": intr,
+                       "lights": _frame_lights(lights, top, f, i, pos)})
     # pass 2: photos
     decode = _Decoder(gamma)
     images, sats, usable, native, target, views = [], [], [], None, None, []
@@ -408,15 +522,15 @@ def load_transforms(path, resolution=None, gamma=2.2, *, max_resolution=None) ->
         forward, cam_up = -r[:, 2], r[:, 1]
         cam = PerspectiveCamera(position=tuple(pos.tolist()), target=tuple((pos + forward).tolist()),
                                 up=tuple(cam_up.tolist()), fov=fov, resolution=target or native)
-        lpos, lpow = fr["light"]
-        views.append(View(cam, (PointLight(tuple(np.asarray(lpos).tolist()), tuple(lpow.tolist())),),
-                          name=fr["image"].stem))
+        views.append(View(cam, fr["lights"], name=fr["image"].stem))
     mesh = Mesh.load(mesh_file, units=units, scene_units="cm", up=up)
     meta = {"format": "transforms", "source": str(folder if jf.name == TRANSFORMS_FILE else jf), "units": "cm",
             "file_units": units, "up": up, "gamma": gamma if isinstance(gamma, str) else float(gamma),
             "mesh": str(mesh_file), "native_resolution": list(native),
             "images": [str(fr["image"].relative_to(folder)) if fr["image"].is_relative_to(folder) else str(fr["image"])
                        for fr in parsed]}
+    if lights.used:
+        meta["environment_maps"] = list(lights.used)
     return Observations(views, torch.stack(images).contiguous(), mesh, mask=torch.stack(usable),
                         saturated=torch.stack(sats), meta=meta)
 
@@ -431,19 +545,54 @@ def _dumps(doc) -> str:
                   lambda mt: "[" + ", ".join(x.strip() for x in mt.group(1).split(",")) + "]", text) + "\n"
 
 
+def _map_key(env) -> str:
+    """The content of an environment's map alone (not its scale or rotation): views sharing a map write it once."""
+    import hashlib
+
+    return hashlib.sha256(env.radiance.contiguous().numpy().tobytes()
+                          + repr(tuple(env.radiance.shape)).encode()).hexdigest()[:16]
+
+
+def _environment_files(views) -> dict:
+    """``{environment digest: (file name, EnvironmentLight)}`` of the views' environment lights, a map written
+    once however many views (and rotations, scales) use it: ``env.exr`` when there is one map,
+    ``env_<content hash>.exr`` each when there are several."""
+    by_digest, maps = {}, {}
+    for v in views:
+        e = v.environment
+        if e is not None and e.digest not in by_digest:
+            by_digest[e.digest] = k = _map_key(e)
+            maps.setdefault(k, e)
+    names = {k: "env.exr" if len(maps) == 1 else f"env_{k[:8]}.exr" for k in maps}
+    return {dg: (names[k], maps[k]) for dg, k in by_digest.items()}
+
+
+def _light_object(light, cam, env_files) -> dict:
+    """The transforms.json object of one light of a view (cm, z-up)."""
+    if isinstance(light, PointLight):
+        if light.position == cam.position:
+            return {"type": "collocated", "power": list(light.power)}
+        return {"type": "point", "position": list(light.position), "power": list(light.power)}
+    return {"type": "environment", "map": env_files[light.digest][0], "scale": light.scale,
+            "to_world": [list(r) for r in light.to_world]}
+
+
 def save_transforms(obs, folder, image_format: str = "exr", *, mesh_path: str | None = None, gamma=2.2) -> Path:
     """Write observations of a mesh as a ``transforms.json`` capture; returns the path of ``transforms.json``.
 
     ``obs`` is an :class:`~bayes_brdf.observations.Observations` (or a
     ``(views, images, mesh)`` tuple) whose surface is a
     :class:`~bayes_brdf.render.mesh.Mesh`, whose cameras are
-    :class:`~bayes_brdf.render.cameras.PerspectiveCamera` s and whose views have
-    one point light each (with falloff), all in cm. Writes ``transforms.json``
+    :class:`~bayes_brdf.render.cameras.PerspectiveCamera` s and whose views' point lights have
+    distance falloff, all in cm. Writes ``transforms.json``
     (``units: "cm"``, ``up: "z"``; ``w``, ``h``, and per frame
     ``camera_angle_x`` plus the equivalent ``fl_x = fl_y``, ``cx = w/2``,
-    ``cy = h/2``; a top-level collocated light when every view has a flash of
-    one power at its camera, else per-frame ``light_position`` /
-    ``light_power``), ``images/frame_NNN.exr`` (linear float32, exact) or
+    ``cy = h/2``; the lights: with one point light per view as before, a top-level collocated light when every
+    view has a flash of one power at its camera, else per-frame ``light_position`` / ``light_power``; with an
+    environment or several lights, the light objects (``collocated`` for a point light at the camera,
+    ``point``, ``environment``) once at the top level as ``light`` / ``lights`` when every view has the same,
+    else per frame), each environment map once as a float32 EXR next to the JSON (``env.exr``, or
+    ``env_<content hash>.exr`` when there are several maps), ``images/frame_NNN.exr`` (linear float32, exact) or
     ``.png`` (8-bit, encoded with ``gamma``: load it back with the same gamma;
     values above 1 clip and come back flagged saturated), the mesh as OBJ at
     ``mesh_path`` (relative to ``folder``; default ``<mesh name>.obj``; full
@@ -481,33 +630,42 @@ def save_transforms(obs, folder, image_format: str = "exr", *, mesh_path: str | 
     if out.exists() and not out.is_dir():
         raise InputError("output path exists and is not a folder", where=out, fix="give a folder path")
     h, w = obs.resolution
-    frames, collocated, powers = [], True, set()
+    env_files = _environment_files(obs.views)
+    frames, descs, legacy, collocated, powers = [], [], True, True, set()
     for i, v in enumerate(obs.views):
         cam = v.camera
         if not isinstance(cam, PerspectiveCamera):
             raise InputError(f"view {i} ('{v.name}') has a {type(cam).__name__}: a transforms.json stores only "
                              "perspective (pinhole) cameras", fix="render perspective views of the mesh")
-        if len(v.lights) != 1 or not v.lights[0].falloff:
-            raise InputError(f"view {i} ('{v.name}') has {len(v.lights)} lights"
-                             + ("" if len(v.lights) != 1 else " without distance falloff"),
-                             fix="a transforms.json frame stores one point light with 1/d^2 falloff")
-        light = v.lights[0]
-        collocated &= light.position == cam.position
-        powers.add(light.power)
+        flat = [l for l in v.point_lights if not l.falloff]
+        if flat:
+            raise InputError(f"view {i} ('{v.name}') has a point light without distance falloff",
+                             fix="a transforms.json stores point lights with 1/d^2 falloff")
+        descs.append([_light_object(l, cam, env_files) for l in v.lights])
+        legacy &= len(v.lights) == 1 and v.environment is None
         r, u, f = (x.numpy() for x in cam.frame())
         m = np.eye(4)
         m[:3, 0], m[:3, 1], m[:3, 2], m[:3, 3] = r, u, -f, cam.position
         ax = math.radians(cam.fov)
         fl = w / (2 * math.tan(ax / 2))
         frames.append({"file_path": f"images/frame_{i:03d}.{image_format}", "transform_matrix": m.tolist(),
-                       "camera_angle_x": ax, "fl_x": fl, "fl_y": fl,
-                       "light_position": list(light.position), "light_power": list(light.power)})
+                       "camera_angle_x": ax, "fl_x": fl, "fl_y": fl})
+        if legacy:
+            collocated &= v.lights[0].position == cam.position
+            powers.add(v.lights[0].power)
     doc = {"format": "bayes-brdf transforms/1", "units": "cm", "up": "z", "mesh": mp.as_posix(),
            "w": w, "h": h, "cx": w / 2, "cy": h / 2}
-    if collocated and len(powers) == 1:
-        doc["light"] = {"type": "collocated", "power": list(powers.pop())}
-        for fr in frames:
-            del fr["light_position"], fr["light_power"]
+    if legacy:                  # one point light per view: the layout every reader of this format knows
+        if collocated and len(powers) == 1:
+            doc["light"] = {"type": "collocated", "power": list(powers.pop())}
+        else:
+            for fr, v in zip(frames, obs.views):
+                fr["light_position"], fr["light_power"] = list(v.lights[0].position), list(v.lights[0].power)
+    elif all(dl == descs[0] for dl in descs):      # the same lights in every view: once, at the top
+        doc["light" if len(descs[0]) == 1 else "lights"] = descs[0][0] if len(descs[0]) == 1 else descs[0]
+    else:
+        for fr, dl in zip(frames, descs):
+            fr["light" if len(dl) == 1 else "lights"] = dl[0] if len(dl) == 1 else dl
     if len({fr["camera_angle_x"] for fr in frames}) == 1:     # one lens: intrinsics once, at the top
         for k in ("camera_angle_x", "fl_x", "fl_y"):
             doc[k] = frames[0][k]
@@ -526,6 +684,8 @@ def save_transforms(obs, folder, image_format: str = "exr", *, mesh_path: str | 
             if keep:
                 fr[key] = f"{'masks' if name == 'mask' else name}/frame_{i:03d}.png"
                 write_png(out / fr[key], mk[i].detach().cpu().float(), linear=False)
+    for name, env in dict(env_files.values()).items():
+        write_exr(out / name, env.radiance)
     write_text(out / mp, obj_text(obs.surface))
     doc["frames"] = frames
     return write_text(out / TRANSFORMS_FILE, _dumps(doc))

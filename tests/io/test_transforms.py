@@ -360,8 +360,8 @@ def test_save_transforms_refuses_what_the_format_cannot_hold(tmp_path):
     raises_one_line(lambda: save_transforms((
         [View.collocated(RectifiedCamera((0, 0, 4.0), resolution=2))], torch.zeros(1, 2, 2, 3), m), tmp_path),
         "RectifiedCamera")
-    two = View(persp, (PointLight((0, 0, 4.0)), PointLight((1, 0, 4.0))))
-    raises_one_line(lambda: save_transforms(([two], torch.zeros(1, 2, 2, 3), m), tmp_path), "2 lights")
+    flat = View(persp, (PointLight((0, 0, 4.0)), PointLight((1, 0, 4.0), falloff=False)))
+    raises_one_line(lambda: save_transforms(([flat], torch.zeros(1, 2, 2, 3), m), tmp_path), "without distance falloff")
 
 
 # ------------------------------------------------------------------ the command line
