@@ -4,8 +4,10 @@ Layout::
 
     observations.json     format_version, units, surface ({type: plane, size, grid} or
                           {type: mesh, ...}), resolution, views (View.to_dict()),
-                          image / mask file names, meta
+                          image / mask file names, meta, and environments ({digest: map file}) when
+                          views hold an environment light
     surface.safetensors   a mesh's arrays (vertices, faces, uv, normals), for mesh scenes
+    environment_<hash>.exr  the map of each environment light (linear float32, exact), when views have one
     view_000.exr ...      one image per view: linear float32 EXR (exact), or
                           16-bit PNG holding linear_to_srgb(image / scale, "srgb")
     mask_000.png ...      8-bit 0/255 PNGs, when the observations have a mask
@@ -32,9 +34,12 @@ from ..render.views import View
 from .jsonfile import read_json_object
 from .images import linear_to_srgb, read_raw, srgb_to_linear, to_rgb, write_exr, write_png
 
-__all__ = ["save_observations", "load_observations", "FORMAT_VERSION", "BUNDLE_FILE"]
+__all__ = ["save_observations", "load_observations", "load_environments", "FORMAT_VERSION", "BUNDLE_FILE"]
 
-FORMAT_VERSION = 2        # 2: surfaces may be meshes; a plane bundle is still written as 1 (older readers take it)
+#: 2: surfaces may be meshes; 3: views may hold an environment light (its map in an EXR next to the JSON). A
+#: bundle is written with the lowest version that holds it (a plane without environments as 1), so older
+#: readers take what they can read and refuse the rest in one line
+FORMAT_VERSION = 3
 BUNDLE_FILE = "observations.json"
 SURFACE_FILE = "surface.safetensors"
 _PNG_CURVE = "srgb"  # exact piecewise sRGB curve for PNG-stored images
@@ -99,6 +104,7 @@ def save_observations(obs: Observations, directory, image_format: str = "exr") -
                 e[name] = f"{name}_{i:03d}.png"
                 write_png(d / e[name], m[i].detach().cpu().float(), linear=False, bits=8)
         entries.append(e)
+    envs = _save_environments(obs.views, d)
     smeta, stensors = surface_state(obs.surface)
     if stensors:
         from safetensors.torch import save_file
@@ -108,7 +114,7 @@ def save_observations(obs: Observations, directory, image_format: str = "exr") -
             save_file({k: v.contiguous().cpu() for k, v in stensors.items()}, str(tmp))
         smeta = {**smeta, "file": SURFACE_FILE}
     doc = {
-        "format_version": 1 if isinstance(obs.surface, PlanarSample) else FORMAT_VERSION,
+        "format_version": 3 if envs else 1 if isinstance(obs.surface, PlanarSample) else 2,
         "kind": "bayes_brdf.observations",
         "units": (obs.meta or {}).get("units", ""),
         "surface": smeta,
@@ -118,9 +124,50 @@ def save_observations(obs: Observations, directory, image_format: str = "exr") -
         "views": entries,
         "meta": _jsonable(obs.meta or {}),
     }
+    if envs:
+        doc["environments"] = envs
     from .outputs import write_text
 
     return write_text(d / BUNDLE_FILE, json.dumps(doc, indent=2, allow_nan=False))
+
+
+def _save_environments(views, d: Path) -> dict:
+    """Write each distinct environment map of ``views`` as ``environment_<hash>.exr`` in ``d`` (once, however
+    many views, scales and rotations use it); returns ``{environment digest: file name}``."""
+    import hashlib
+
+    out, written = {}, {}
+    for v in views:
+        e = v.environment
+        if e is None or e.digest in out:
+            continue
+        r = e.radiance.detach().cpu().contiguous()
+        key = hashlib.sha256(r.numpy().tobytes() + repr(tuple(r.shape)).encode()).hexdigest()[:16]
+        if key not in written:
+            written[key] = write_exr(d / f"environment_{key}.exr", r).name
+        out[e.digest] = written[key]
+    return out
+
+
+def load_environments(doc: dict, jf) -> dict:
+    """``{digest: radiance [H, W, 3]}`` of the environment maps a bundle's ``observations.json`` (the dict
+    ``doc``, read from ``jf``) lists, for :meth:`~bayes_brdf.render.views.View.from_dict`; ``{}`` when none."""
+    envs = doc.get("environments") or {}
+    jf = Path(jf)
+    if not isinstance(envs, dict) or not all(isinstance(v, str) and v for v in envs.values()):
+        raise InputError("'environments' must map each environment's digest to its map file", where=jf,
+                         fix="re-save the bundle with save_observations")
+    out, cache = {}, {}
+    for dg, name in envs.items():
+        p = jf.parent / name
+        if name not in cache:
+            if not p.is_file():
+                raise InputError("environment map listed in observations.json is missing", where=p,
+                                 fix="restore it or re-save the bundle")
+            from ..render.environment import EnvironmentLight
+            cache[name] = EnvironmentLight.from_file(p).radiance      # refuses a map that is not HDR, NaN, < 0
+        out[str(dg)] = cache[name]
+    return out
 
 
 def _load_mask(path: Path, shape) -> torch.Tensor:
@@ -180,6 +227,7 @@ def load_observations(directory) -> Observations:
         raise InputError(f"unsupported bundle format_version {ver!r} (this version reads 1..{FORMAT_VERSION})",
                          where=jf, fix="upgrade bayes_brdf or re-save the bundle")
     surface = _load_surface(doc["surface"], jf)
+    envs = load_environments(doc, jf)
     entries = doc["views"]
     if not isinstance(entries, list) or not entries:
         raise InputError("'views' must be a non-empty list", where=jf)
@@ -187,7 +235,7 @@ def load_observations(directory) -> Observations:
     for i, e in enumerate(entries):
         if not isinstance(e, dict) or "view" not in e or "image" not in e:
             raise InputError(f"views[{i}] needs 'view' and 'image'", where=jf, fix="re-save the bundle")
-        views.append(View.from_dict(e["view"], where=f"{jf} views[{i}]"))
+        views.append(View.from_dict(e["view"], where=f"{jf} views[{i}]", environments=envs))
         ip = d / str(e["image"])
         if not ip.is_file():
             raise InputError("image listed in observations.json is missing", where=ip, fix="restore it or re-save the bundle")
