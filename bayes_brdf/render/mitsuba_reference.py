@@ -597,3 +597,6 @@ class Unshadowed:
 
     def occluded(self, hits, light_positions):
         return None
+
+    def occluded_directions(self, points, normals, directions):
+        return None

@@ -142,7 +142,12 @@ def _chunks(maps: SVBRDF, g: GBuffer, eps: float, chunk_views: int | None, texel
             sc = memo.get((s, e, "scale"))
             if sc is None or sc[0] is not g.light_scale:    # one view object, so the native geometry cache hits
                 sc = memo[(s, e, "scale")] = (g.light_scale, gc.light_scale[None])
-            env = None if g.env is None else gc.env[None]
+            env = None
+            if g.env is not None:                           # one tensor object: the kernel's layout copy is kept
+                ev = memo.get((s, e, "env"))
+                if ev is None or ev[0] is not g.env:
+                    ev = memo[(s, e, "env")] = (g.env, gc.env[None])
+                env = ev[1]
             yield s, e, (kd, rough, ks, *cosines(s, e, gc), sc[1]), tp, env
 
     return n, g, it()
