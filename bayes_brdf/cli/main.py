@@ -22,6 +22,7 @@ Bad input prints ONE line ``bayes-brdf: error: ...`` and exits with code 2.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import logging
 import os
@@ -69,11 +70,15 @@ def _views_from_spec(spec: str, a, target=(0.0, 0.0, 0.0)) -> list:
             data = json.loads(p.read_text())
         except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
             raise InputError(f"unreadable views JSON ({e})", where=p) from None
+        envs = {}
+        if isinstance(data, dict) and data.get("environments"):       # a bundle's maps, next to its JSON
+            from ..io.bundle import load_environments
+            envs = load_environments(data, p)
         data = data.get("views", data) if isinstance(data, dict) else data
         if not isinstance(data, list) or not data:
             raise InputError("expected a non-empty list of views", where=p, fix="see observations.json written by 'render'")
         # a plain list of views, or the "views" of an observations.json bundle ({"view": {...}, "image": ...})
-        return [View.from_dict(d.get("view", d) if isinstance(d, dict) else d, where=f"{p}[{i}]")
+        return [View.from_dict(d.get("view", d) if isinstance(d, dict) else d, where=f"{p}[{i}]", environments=envs)
                 for i, d in enumerate(data)]
     kind, _, num = spec.partition(":")
     if kind not in ("fibonacci", "sobol", "random", "orbit") or not num.isdigit() or int(num) < 1:
@@ -110,6 +115,33 @@ def _load_mesh(spec: str, a):
         return {"sphere": Mesh.sphere, "bowl": Mesh.bowl, "block": Mesh.block_on_plane, "plane": Mesh.plane}[spec]()
     raise InputError(f"--mesh {spec!r} is neither a mesh file nor a built-in shape",
                      fix=f"give an OBJ/PLY/GLB file or one of {', '.join(_BUILTIN_MESHES)}")
+
+
+def _with_environment(views, a) -> list:
+    """``--env`` / ``--env-rotate`` / ``--env-scale`` / ``--no-flash`` applied to the views' lights."""
+    from ..render.environment import EnvironmentLight, z_up
+    from ..render.views import View
+
+    if not a.env:
+        for opt, val in (("--env-rotate", a.env_rotate), ("--env-scale", a.env_scale)):
+            if val is not None:
+                raise InputError(f"{opt} needs --env", fix=f"add --env MAP.exr, or leave {opt} out")
+    env = None
+    if a.env:
+        env = EnvironmentLight.from_file(a.env, a.env_scale if a.env_scale is not None else 1.0,
+                                         z_up(a.env_rotate or 0.0))
+    out = []
+    for v in views:
+        lights = [l for l in v.lights if env is None or not isinstance(l, EnvironmentLight)]   # --env replaces
+        if a.no_flash:
+            lights = [l for l in lights if isinstance(l, EnvironmentLight)]
+        if env is not None:
+            lights.append(env)
+        if not lights:
+            raise InputError(f"--no-flash leaves view '{v.name}' without a light",
+                             fix="add --env MAP.exr (an environment light), or leave --no-flash out")
+        out.append(View(v.camera, tuple(lights), v.name))
+    return out
 
 
 def cmd_render(a) -> int:
@@ -151,7 +183,14 @@ def cmd_render(a) -> int:
     if transforms and isinstance(surface, PlanarSample):
         raise InputError("--layout transforms needs a mesh (a transforms.json capture stores perspective photos of "
                          "a mesh)", fix="add --mesh PATH|sphere|bowl|block|plane, or use --layout bundle")
+    views = _with_environment(views, a)
     maps = _load_material(a.material, a).to(dtype=torch.float32, device=a.device)
+    flattened = False
+    if any(v.environment is not None for v in views):      # the environment's transfer follows the geometry only
+        flat = torch.zeros_like(maps.normal)
+        flat[2] = 1.0
+        flattened = not torch.equal(maps.normal, flat)
+        maps = dataclasses.replace(maps, normal=flat)
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
     if len({tuple(v.resolution) for v in views}) > 1:
@@ -162,11 +201,15 @@ def cmd_render(a) -> int:
             g = GBuffer.build([v], surface, device=a.device)
             images.append(shade(maps, g)[0, 0].cpu())
     imgs = torch.stack(images)
-    obs = Observations(views, imgs, surface, meta={"source": "bayes-brdf render", "material": a.material,
-                                                   "seed": a.seed, "units": "scene units"})
+    meta = {"source": "bayes-brdf render", "material": a.material, "seed": a.seed, "units": "scene units"}
+    if a.env:
+        meta.update(environment=str(a.env), env_rotate=a.env_rotate or 0.0, env_scale=a.env_scale or 1.0)
+    obs = Observations(views, imgs, surface, meta=meta)
     if transforms:
         jf = save_transforms(obs, out, image_format=a.format)
         written = f"transforms.json, images/*.{a.format}, {json.loads(jf.read_text())['mesh']}"
+        if any(v.environment is not None for v in views):
+            written += ", env*.exr"
     else:
         save_observations(obs, out, image_format=a.format)
         written = f"observations.json, {a.format.upper()} images"
@@ -174,8 +217,13 @@ def cmd_render(a) -> int:
     for i, im in enumerate(imgs):
         write_png(out / f"preview_{i:02d}.png", im.clamp(0, 1).numpy())
     what = f"'{a.material}'" + (f" on mesh '{surface.name}'" if not isinstance(surface, PlanarSample) else "")
+    env = next((v.environment for v in views if v.environment is not None), None)
+    if env is not None:
+        what += f" under environment '{env.name or env.digest}'" + ("" if views[0].point_lights else " alone")
     print(f"rendered {len(views)} views of {what} at {imgs.shape[1]}x{imgs.shape[2]} -> {out}/ "
-          f"({written}, preview_*.png, maps/)")
+          f"({written}, preview_*.png, maps/)"
+          + ("; the material's normal map was made flat (an environment light is shaded with the geometry's own "
+             "normals)" if flattened else ""))
     return 0
 
 
@@ -226,6 +274,17 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--fov", type=_positive_float, default=45.0, help="perspective field of view in degrees (default: %(default)s)")
     r.add_argument("--power", type=_positive_float, default=None,
                    help="flash power (radiance = f cos P / d^2) (default: 20; with --mesh 20 x (radius / 3)^2, as bright)")
+    r.add_argument("--env", metavar="MAP", default=None,
+                   help="also light every view by this environment map (equirectangular OpenEXR or Radiance .hdr, "
+                        "linear RGB, as Mitsuba's envmap), its zenith on +z; replaces a --capture's own environment. "
+                        "The material's normal map is made flat under it")
+    r.add_argument("--env-rotate", type=float, default=None, metavar="DEG",
+                   help="turn the environment about +z by this many degrees, counter-clockwise seen from above (default: "
+                        "0: the map's centre column is the sky towards -x, its left and right edges towards +x)")
+    r.add_argument("--env-scale", type=_positive_float, default=None, metavar="S",
+                   help="multiply the environment map's radiance by S (default: 1)")
+    r.add_argument("--no-flash", action="store_true",
+                   help="leave the views' point lights (the flash) out: with --env, lit by the environment alone")
     r.add_argument("--sample-size", type=_positive_float, default=2.0, help="side of the square sample (default: %(default)s)")
     r.add_argument("--format", choices=["exr", "png"], default="exr", help="image format of the bundle (default: %(default)s)")
     r.add_argument("--device", default="cpu", help="torch device, e.g. cpu or cuda (default: %(default)s)")

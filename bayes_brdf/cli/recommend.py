@@ -67,7 +67,10 @@ def _candidates(spec: str, full, fitted):
     v0 = full.views[0]
     centre = full.surface.center
     dist = sorted(math.dist(v.camera.position, centre) for v in full.views)[len(full.views) // 2]
-    light = v0.lights[0]
+    if not v0.point_lights:
+        raise InputError(f"--candidates {spec}: the capture's views have no flash to copy onto the generated views",
+                         fix="give a JSON file of candidate views")
+    light = v0.point_lights[0]
     if isinstance(v0.camera, PerspectiveCamera):    # like the capture's cameras, around its geometry's centre
         kw = dict(camera="perspective", fov=v0.camera.fov, target=centre,
                   max_zenith=60 if isinstance(full.surface, PlanarSample) else 90)
@@ -91,6 +94,10 @@ def run(a) -> int:
     obs, full, out = load(a, "recommend", full=True)
     fitted = list(range(len(full))) if a.views is None else list(a.views)
     cands, labels = _candidates(a.candidates, full, fitted)      # a bad --candidates fails before the fit
+    if any(v.environment is not None for v in cands):
+        raise InputError("recommend cannot rank views lit by an environment map yet (view configurations are "
+                         "made of point-light positions)", fix="rank flash-only candidate views (fibonacci:N, "
+                                                               "sobol:N or a JSON file of views)")
     if a.posterior:
         post = Posterior.load(a.posterior)
         if post.model is None:
