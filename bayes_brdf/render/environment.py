@@ -87,7 +87,7 @@ class EnvironmentLight:
     kind = "environment"
 
     def __init__(self, radiance, scale: float = 1.0, to_world=None, name: str = "", where: str | None = None):
-        t = torch.as_tensor(np.asarray(radiance.detach().cpu() if isinstance(radiance, Tensor) else radiance),
+        t = torch.as_tensor(np.ascontiguousarray(radiance.detach().cpu() if isinstance(radiance, Tensor) else radiance),
                             dtype=torch.float32)
         if t.dim() != 3 or t.shape[-1] != 3:
             raise InputError(f"an environment map must be RGB [H, W, 3], got shape {tuple(t.shape)}", where=where)
