@@ -22,7 +22,7 @@
  *         lidx int32 [P, 4] the row (within its chunk) of each tap; rptr [T + 1], rsrc int32 [rows]:
  *         the rows of texel t are rsrc[rptr[t] .. rptr[t + 1]), in chunk order
  *   out [n, V, 3, P] (images), epart [n, nchunk] (energies), gkd, gr, gks shaped like kd, r, ks
- *   env [V, P, 3 + 6 (nodes + 2)] or NULL: an environment light's precomputed terms (transfer.py): E, then per
+ *   env [V, P, 3 + 6 (nodes + 2) + 2] (rows padded by 2, so a slot's 6 values load as one vector) or NULL: an environment light's precomputed terms (transfer.py): E, then per
  *       roughness slot a, b (a ghost slot at each end), read by Catmull-Rom in log r (nodes at t0 + k dt)
  * Returns 0, or 1 when its scratch memory could not be allocated.
  */
@@ -86,7 +86,7 @@ static inline void env_lookup(const struct targs *restrict q, const REAL *restri
         tt[i] = t <= 0 ? 0 : (t >= top ? top : t);
         dd[i] = (t <= 0 || t >= top) ? 0 : idt / r;
     }
-    for (int i = 0; i < LANES; i++) {
+    for (int i = 0; i < LANES; i++) {   /* one lane: its 4 slots as vectors over the 6 values (rows padded by 2) */
         const REAL t = tt[i], ds = dd[i];
         int64_t k = (int64_t)t;
         if (k > N - 2) k = N - 2;
@@ -96,11 +96,9 @@ static inline void env_lookup(const struct targs *restrict q, const REAL *restri
         const REAL d0 = (REAL)0.5 * (-1 + 4 * x - 3 * x2) * ds, d1 = (REAL)0.5 * (-10 * x + 9 * x2) * ds,
                    d2 = (REAL)0.5 * (1 + 8 * x - 9 * x2) * ds, d3 = (REAL)0.5 * (3 * x2 - 2 * x) * ds;
         const REAL *tb = ep + 3 + k * 6;
-        for (int c = 0; c < 6; c++) {
-            const REAL f0 = tb[c], f1 = tb[6 + c], f2 = tb[12 + c], f3 = tb[18 + c];
-            xa[c][i] = w0 * f0 + w1 * f1 + w2 * f2 + w3 * f3;
-            xd[c][i] = d0 * f0 + d1 * f1 + d2 * f2 + d3 * f3;
-        }
+        const vec f0 = LD(tb), f1 = LD(tb + 6), f2 = LD(tb + 12), f3 = LD(tb + 18);
+        const vec val = w0 * f0 + w1 * f1 + w2 * f2 + w3 * f3, der = d0 * f0 + d1 * f1 + d2 * f2 + d3 * f3;
+        for (int c = 0; c < 6; c++) { xa[c][i] = val[c]; xd[c][i] = der[c]; }
     }
     for (int c = 0; c < 6; c++) { va[c] = LD(xa[c]); vd[c] = LD(xd[c]); }
 }
@@ -232,7 +230,7 @@ int bb_shade_texels(int64_t mode, int64_t n, int64_t V, int64_t L, int64_t P, in
     struct targs q = {mode, n, V, L, P, T, l2, (mode == MODE_IMAGE_BWD) || (mode == MODE_LOSS && need_grad),
                       flags, np, 0, 0, nchunk, ks_factor ? (REAL)1 : (REAL)0, tidx, lidx, tw, cstart, uoff,
                       nl, nv, nh2, w, amp, y, wgt, gout, out, {0}, 0, 0, 0, 0, 0,
-                      env, nodes, 3 + 6 * (nodes + 2), t0, dt};
+                      env, nodes, 3 + 6 * (nodes + 2) + 2, t0, dt};
     const REAL *src[7];    /* channel ch of particle i: src[ch][i * stride[ch] + t] */
     int64_t stride[7];
     REAL *dst[7];

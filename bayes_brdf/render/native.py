@@ -214,14 +214,16 @@ _ENV: OrderedDict = OrderedDict()
 
 
 def env_layout(env: Tensor | None) -> Tensor | None:
-    """An environment's terms ``[1, V, C, 1, P]`` in the texel kernel's layout ``[V, P, C]`` (kept while the
-    same tensor comes again)."""
+    """An environment's terms ``[1, V, C, 1, P]`` in the texel kernel's layout ``[V, P, C + 2]`` (rows padded by
+    two zeros; kept while the same tensor comes again)."""
     if env is None:
         return None
     hit = _ENV.get(id(env))
     if hit is not None and hit[0] is env:
         return hit[1]
-    out = env[0, :, :, 0, :].transpose(1, 2).contiguous()
+    src = env[0, :, :, 0, :].transpose(1, 2)                       # [V, P, C]
+    out = torch.zeros(*src.shape[:2], src.shape[2] + 2, dtype=src.dtype)   # rows padded: vector loads of a slot
+    out[..., :src.shape[2]] = src
     _ENV[id(env)] = (env, out)
     while len(_ENV) > 8:
         _ENV.popitem(last=False)
