@@ -27,28 +27,9 @@ from bayes_brdf.render.mesh import Mesh
 from bayes_brdf.render.views import View
 
 try:
-    from bench_mesh_step import interleaved
+    from bench_mesh_step import interleaved, setup
 except ImportError:                                    # run from the repository root
-    from benchmarks.bench_mesh_step import interleaved
-from bayes_brdf.materials import make_material
-from bayes_brdf.models import ModelData, per_texel
-from bayes_brdf.observations import Observations
-from bayes_brdf.potential import Potential
-from bayes_brdf.render import SVBRDF
-from bayes_brdf.render.shade import render
-from bayes_brdf.samplers import make_sampler
-
-def setup(surface, views, tex, particles):
-    """Photos of the tiles material (its normal map flattened: an environment's transfer is for the surface's
-    own normals), the model, the sampler and its initial state."""
-    t = make_material("tiles", tex, seed=0)
-    truth = SVBRDF(t.albedo, t.roughness, t.specular, torch.tensor([0, 0, 1.0])[:, None, None].expand(3, tex, tex))
-    img = render(truth, views, surface)[0]
-    data = ModelData.from_observations(Observations(views, img, surface))
-    pot = Potential(per_texel(tex, albedo="rgb"), (data,))
-    smp, cfg = make_sampler("spos", run={"particles": particles})
-    state = smp.init(pot.init(particles, seed=0), pot, torch.Generator().manual_seed(0), steps=cfg.steps)
-    return data, pot, smp, state
+    from benchmarks.bench_mesh_step import interleaved, setup
 
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "psdr_assets"
@@ -70,7 +51,7 @@ def main(argv=None):
     rows = {}
     for name, views in (("flash", flash), ("environment", lit)):
         t0 = time.perf_counter()
-        rows[name] = setup(mesh, views, a.tex, a.particles)
+        rows[name] = setup(mesh, views, a.tex, a.particles, flat_normals=True)
         g = GBUFFERS.get(tuple(views), mesh)
         rows[name] += (time.perf_counter() - t0, g.nbytes)
     pixels = int(rows["flash"][0].weight.count_nonzero())

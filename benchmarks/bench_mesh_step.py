@@ -29,7 +29,7 @@ from bayes_brdf.materials import make_material
 from bayes_brdf.models import ModelData, per_texel
 from bayes_brdf.observations import Observations
 from bayes_brdf.potential import Potential
-from bayes_brdf.render import PlanarSample, collocated_views
+from bayes_brdf.render import SVBRDF, PlanarSample, collocated_views
 from bayes_brdf.render.mesh import Mesh
 from bayes_brdf.render.shade import render
 from bayes_brdf.samplers import make_sampler
@@ -37,8 +37,13 @@ from bayes_brdf.samplers import make_sampler
 BUNNY = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "psdr_assets" / "bunny_low.obj"
 
 
-def setup(surface, views, tex, particles):
+def setup(surface, views, tex, particles, flat_normals: bool = False):
+    """Photos of the tiles material (``flat_normals``: its normal map flattened, as an environment light needs),
+    the model, the sampler and its initial state."""
     truth = make_material("tiles", tex, seed=0)
+    if flat_normals:
+        truth = SVBRDF(truth.albedo, truth.roughness, truth.specular,
+                       torch.tensor([0, 0, 1.0])[:, None, None].expand(3, tex, tex))
     img = render(truth, views, surface)[0]
     data = ModelData.from_observations(Observations(views, img, surface))
     pot = Potential(per_texel(tex, albedo="rgb"), (data,))
