@@ -55,6 +55,40 @@ def z_up(rotate_deg: float = 0.0) -> tuple:
     return tuple(tuple(float(x) for x in row) for row in m)
 
 
+def studio(height: int = 32, softbox: float = 6.0, zenith_deg: float = 20.0, size_deg: float = 30.0,
+           sky: float = 0.3, floor: float = 0.05, azimuth_deg: float = 0.0) -> "EnvironmentLight":
+    """A small built-in studio: a dim sky (``sky`` at the zenith falling to half at the horizon), a dark floor
+    (``floor``) and one bright square softbox (radiance ``softbox``, ``size_deg`` across) centred ``zenith_deg``
+    from the zenith at azimuth ``azimuth_deg`` (0: towards world ``+x``, 90: ``+y``), as a ``height x 2 height`` map z-up (:func:`z_up`).
+    Deterministic and file-free: for tests, the Table 1 problem under an environment and quick looks; a
+    softbox beside the zenith gives a flat sample a highlight whose size tells its roughness.
+
+    Example:
+        >>> env = studio(16)
+        >>> tuple(env.radiance.shape), float(env.radiance.max())
+        ((16, 32, 3), 6.0)
+    """
+    h, w = int(height), 2 * int(height)
+    v = torch.arange(h, dtype=torch.float64) / (h - 1)                     # rows at corners: 0 the zenith
+    u = (torch.arange(w, dtype=torch.float64) + 0.5) / w                    # columns at centres
+    theta = (v * 180.0)[:, None].expand(h, w)
+    img = torch.where(theta < 90, sky * (1 - 0.5 * theta / 90), torch.full_like(theta, floor))
+    # the softbox, in the map's own frame: z_up puts u = 0 (local -z) on world +x, so azimuth 0 is u = 0
+    d = torch.stack([torch.sin(torch.deg2rad(theta)) * torch.sin(2 * math.pi * u)[None],
+                     torch.cos(torch.deg2rad(theta)),
+                     -torch.sin(torch.deg2rad(theta)) * torch.cos(2 * math.pi * u)[None]], -1)
+    z = math.radians(zenith_deg)
+    c = torch.tensor([0.0, math.cos(z), -math.sin(z)], dtype=torch.float64)
+    e1 = torch.tensor([1.0, 0.0, 0.0], dtype=torch.float64)                 # across the box
+    e2 = torch.linalg.cross(c, e1)
+    half = math.tan(math.radians(size_deg) / 2)
+    front = (d * c).sum(-1)
+    x, y = (d * e1).sum(-1) / front.clamp_min(1e-9), (d * e2).sum(-1) / front.clamp_min(1e-9)
+    box = (front > 0) & (x.abs() <= half) & (y.abs() <= half)
+    img = torch.where(box, torch.full_like(img, softbox), img)
+    return EnvironmentLight(img[..., None].expand(h, w, 3).float(), 1.0, z_up(azimuth_deg), name="studio")
+
+
 def _rigid(to_world, where) -> tuple:
     if to_world is None:
         return tuple(tuple(float(i == j) for j in range(4)) for i in range(4))
