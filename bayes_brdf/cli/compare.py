@@ -7,7 +7,7 @@ from .common import float_list, key_value, positive_float, positive_int
 def add_parser(sub):
     c = sub.add_parser("compare", help="the sampler comparison table (the paper's Table 1)",
                        description="Sample a 2-D posterior (gray albedo, roughness; one pixel under one collocated "
-                                   "flash) with each sampler, compare with dense quadrature, print a markdown table "
+                                   "flash, or under a known environment) with each sampler, compare with dense quadrature, print a markdown table "
                                    "of MSE of the mean / variance and seconds; --json writes the numbers.")
     c.add_argument("--angle", type=float, default=0.0, help="zenith of camera+flash in degrees (default: %(default)s)")
     c.add_argument("--albedo", type=float, default=0.5, help="true albedo of the observed pixel (default: %(default)s)")
@@ -15,6 +15,13 @@ def add_parser(sub):
     c.add_argument("--sigma", type=positive_float, default=0.01, help="sigma_err of the L1 likelihood (default: %(default)s)")
     c.add_argument("--observations", type=float_list, default=[],
                    help="extra configurations as comma-separated angles, one pixel each (default: none)")
+    c.add_argument("--lighting", choices=("collocated", "environment", "environment+flash"), default="collocated",
+                   help="how the pixel is lit: the collocated flash, a known environment alone, or both "
+                        "(default: %(default)s)")
+    c.add_argument("--env", metavar="MAP", default=None,
+                   help="HDR map (EXR or .hdr, read z-up) for the environment lightings (default: the built-in "
+                        "studio, a softbox mirrored by a camera at --angle 20)")
+    c.add_argument("--env-scale", type=positive_float, default=1.0, help="radiance scale of the map (default: %(default)s)")
     c.add_argument("--runs", type=positive_int, default=20, help="independent runs per sampler (default: %(default)s)")
     c.add_argument("--particles", type=positive_int, default=16, help="samples per run (default: %(default)s)")
     c.add_argument("--steps", type=positive_int, default=None,
@@ -42,6 +49,9 @@ def run(a) -> int:
     for ang in [a.angle, *a.observations]:
         if not 0 <= ang < 89:
             raise InputError(f"angles must be in [0, 89) degrees, got {ang}")
+    if a.env is not None and a.lighting == "collocated":
+        raise InputError("--env needs an environment lighting", fix="add --lighting environment "
+                                                                    "(or environment+flash)")
     params = {}
     for k, v in a.param:
         if "." not in k:
@@ -49,7 +59,10 @@ def run(a) -> int:
         s, key = k.split(".", 1)
         params.setdefault(s, {})[key] = v
     setup = Table1Setup(angle=a.angle, albedo=a.albedo, roughness=a.roughness, sigma=a.sigma,
-                        observations=a.observations, grid=a.grid)
+                        observations=a.observations, grid=a.grid, lighting=a.lighting, env=a.env,
+                        env_scale=a.env_scale)
+    from ..experiments.table1 import environment_of
+    environment_of(setup)                                  # a bad map fails here, before any sampling
     names = [s for s in a.samplers.split(",") if s]
     table = compare(setup, names, runs=a.runs, particles=a.particles, steps=a.steps, seed=a.seed, params=params,
                     progress=False)

@@ -7,6 +7,12 @@ sample's centre), L1 likelihood (Eq. 2; the pixel's three equal channels all
 count). The observation is the noiseless render of ``(albedo, roughness)``.
 The posterior is a curved ridge: many (rho, r) pairs explain one pixel.
 
+``lighting="environment"``: the same pixel seen under a known environment alone (``env``, default the
+built-in :func:`~bayes_brdf.render.environment.studio`: a dim sky and a softbox 20 degrees from the
+zenith, opposite the cameras, so that at ``angle = 20`` the pixel mirrors its centre), shaded through its precomputed transfer (:mod:`bayes_brdf.render.transfer`);
+``"environment+flash"``: the environment and the collocated flash together. The quadrature runs the
+same model's potential, so it is the exact posterior of what the samplers sample.
+
 Truth: posterior mean and variance of both parameters by dense 2-D
 quadrature of the same model (midpoint rule on ``grid x grid`` cells; the
 density comes from the model's own potential, run on every cell centre in one
@@ -63,23 +69,51 @@ class Table1Setup:
     observations: list = field(default_factory=list)   # extra [angle, ...] configurations (several pixels)
     grid: int = 1000                # quadrature cells per axis
     dtype: str = "float64"
+    lighting: str = "collocated"    # "collocated", "environment" (the built-in studio alone) or "environment+flash"
+    env: str | None = None          # an HDR map for the environment lightings (default: render.environment.studio)
+    env_scale: float = 1.0
 
     def angles(self) -> list[float]:
         return [float(self.angle)] + [float(a) for a in self.observations]
 
 
-def _view(angle: float, distance: float, power: float, name: str) -> View:
+LIGHTINGS = ("collocated", "environment", "environment+flash")
+
+
+def environment_of(setup: Table1Setup):
+    """The setup's environment light (``None`` for ``lighting="collocated"``): ``setup.env`` read z-up, or the
+    built-in :func:`~bayes_brdf.render.environment.studio` with its softbox 20 degrees from the zenith towards
+    ``-x``: the mirror direction of a camera at ``angle = 20`` (the cameras stand on the ``+x`` side)."""
+    from ..errors import InputError
+    from ..render.environment import EnvironmentLight, studio, z_up
+
+    if setup.lighting not in LIGHTINGS:
+        raise InputError(f"unknown lighting '{setup.lighting}'", fix=f"use one of {', '.join(LIGHTINGS)}")
+    if setup.lighting == "collocated":
+        return None
+    if setup.env is None:
+        env = studio(azimuth_deg=180.0)
+        return EnvironmentLight(env.radiance, setup.env_scale, env.to_world, "studio")
+    return EnvironmentLight.from_file(setup.env, setup.env_scale, z_up())
+
+
+def _view(angle: float, distance: float, power: float, name: str, env=None, flash: bool = True) -> View:
     a = math.radians(angle)
     pos = (distance * math.sin(a), 0.0, distance * math.cos(a))
     cam = PerspectiveCamera(position=pos, target=(0.0, 0.0, 0.0), up=(0.0, 1.0, 0.0) if angle < 89 else (0, 0, 1),
                             fov=1.0, resolution=(1, 1))
-    return View.collocated(cam, power=power, name=name)
+    v = View.collocated(cam, power=power, name=name)
+    if env is None:
+        return v
+    return View(cam, (*v.lights, env) if flash else (env,), name)
 
 
 def problem(setup: Table1Setup) -> tuple:
     """``(model, ModelData)`` of the 2-D posterior."""
     dt = getattr(torch, setup.dtype)
-    views = [_view(a, setup.distance, setup.power, f"angle{a:g}") for a in setup.angles()]
+    env = environment_of(setup)
+    views = [_view(a, setup.distance, setup.power, f"angle{a:g}", env, setup.lighting != "environment")
+             for a in setup.angles()]
     surf = PlanarSample(1.0)
     truth = SVBRDF.constant(setup.albedo, setup.roughness, dtype=dt)
     y = render(truth, views, surf)[0]
