@@ -3,7 +3,8 @@ exclusion, and the baselines (low-discrepancy directions, max image-space std).
 
 A view's position in *configuration space* is its unit camera direction and unit light direction seen from
 the centre of the scene's geometry (``surface.center``: the origin for the planar sample), ``theta = (c, l)``
-(a view with several lights: the normalised mean of their unit directions); the distance between two views is the RMS chord
+(a view with several point lights: the normalised mean of their unit directions; a view lit by an environment
+alone: its camera direction); the distance between two views is the RMS chord
 ``sqrt((|c - c'|^2 + |l - l'|^2) / 2)`` (for collocated views: the chord between the camera directions).
 ``radius`` is given in degrees of that chord's angle: after each pick, candidates closer than it are
 removed for the rest of the batch (Sec. 3.4.2).
@@ -38,12 +39,29 @@ def _unit(x: Tensor) -> Tensor:
 
 def configuration(views, target=(0.0, 0.0, 0.0)) -> Tensor:
     """``[V, 6]``: unit camera direction and unit light direction of each view, seen from ``target``
-    (the scene centre); for a view with several lights, the normalised mean of their unit directions."""
+    (the scene centre); for a view with several point lights, the normalised mean of their unit directions.
+
+    An environment light is not a direction: it is the same room for every candidate, so it tells no two
+    views apart. A view lit by its point lights and an environment is placed by its point lights; a view lit
+    by an environment alone (no point light) takes its camera direction as its light part, so that distances
+    between such views are the chords between their cameras, as between collocated flash views.
+
+    Example:
+        >>> from bayes_brdf.render.cameras import PerspectiveCamera
+        >>> from bayes_brdf.render.environment import studio
+        >>> from bayes_brdf.render.views import View
+        >>> configuration([View(PerspectiveCamera((0.0, 0.0, 3.0)), (studio(8),))]).tolist()
+        [[0.0, 0.0, 1.0, 0.0, 0.0, 1.0]]
+    """
     t = torch.tensor(target, dtype=torch.float64)
     rows = []
     for v in views:
         c = _unit(torch.tensor(v.camera.position, dtype=torch.float64) - t)
-        ls = _unit(torch.tensor([l.position for l in v.lights], dtype=torch.float64) - t)
+        points = v.point_lights
+        if not points:                          # an environment alone: the camera is the only direction
+            rows.append(torch.cat([c, c]))
+            continue
+        ls = _unit(torch.tensor([l.position for l in points], dtype=torch.float64) - t)
         rows.append(torch.cat([c, ls[0] if len(ls) == 1 else _unit(ls.mean(0))]))
     return torch.stack(rows)
 
