@@ -15,6 +15,11 @@ decoding) into the same likelihood and renderer as ``per_texel``, so a plane or 
 every sampler, Eq. 9 (in map space, :meth:`Posterior.std`), Eq. 11 and guidance work as
 for the per-texel model.
 
+**Normals** (``normals``): ``"decoded"`` (the default) renders the generator's normal map, which varies per
+particle; ``"flat"`` renders the surface's own normals and leaves the generator's normal channels unused. An
+environment light needs ``"flat"`` (its transfer is precomputed for fixed normals; ``"decoded"`` is refused
+there in one line), as ``per_texel``'s ``normals = "flat"``.
+
 **Start** (:meth:`LatentDecoder.initial_values`): the capture is *projected* into the
 latent space as MaterialGAN does (from ``w_avg`` and zero noise, Adam with ``project_lr`` for
 ``project_steps``; MaterialGAN alternates 10 steps on W+ and 10 on the noise,
@@ -46,10 +51,12 @@ from .. import checks
 from ..errors import InputError
 from .base import ObservedModel
 from .data import ModelData
+from ..render.maps import SVBRDF
 from .svbrdf_channels import decode
 
 PRIORS = ("flat", "gaussian")
 NOISE = ("infer", "zero")
+NORMALS = ("decoded", "flat")
 
 
 class Flat(TorchDistribution):
@@ -135,6 +142,8 @@ class LatentDecoder(ObservedModel):
     project_lr: float = 0.02
     project_alternate: int = 0                        # 0: every site every step; k: k steps per site in turn
     init_spread: float = 0.05
+    normals: str = "decoded"                          # "decoded" (the generator's) or "flat" (the surface's own:
+    #                                                   what an environment light needs, its transfer is precomputed)
 
     kind = "latent_decoder"
 
@@ -144,6 +153,9 @@ class LatentDecoder(ObservedModel):
             raise InputError(f"latent_decoder prior must be one of {', '.join(PRIORS)}, got {self.prior!r}")
         if self.noise not in NOISE:
             raise InputError(f"latent_decoder noise must be one of {', '.join(NOISE)}, got {self.noise!r}")
+        if self.normals not in NORMALS:
+            raise InputError(f"latent_decoder normals must be one of {', '.join(NORMALS)}, got {self.normals!r}",
+                             fix="normals='flat' under an environment light, else 'decoded'")
         for k in ("prior_scale", "project_lr"):
             checks.positive(getattr(self, k), f"latent_decoder {k}")
         for k in ("project_steps", "project_alternate"):
@@ -194,6 +206,8 @@ class LatentDecoder(ObservedModel):
     def to_dict(self) -> dict:
         d = super().to_dict()
         d["weights_digest"] = self._digest
+        if d["normals"] == "decoded":          # the default before the option existed: earlier runs keep their identity
+            del d["normals"]
         return d
 
     def sample_sites(self, data: ModelData) -> dict:
@@ -227,8 +241,12 @@ class LatentDecoder(ObservedModel):
         return g(w, noise)
 
     def maps(self, values: dict):
-        """The decoded :class:`SVBRDF` with a particle dimension ``[n, C, R, R]``."""
-        return decode(self.channels(values))
+        """The decoded :class:`SVBRDF` with a particle dimension ``[n, C, R, R]``; with ``normals = "flat"`` the
+        normal map is the fixed flat one (the generator's normal channels are not used)."""
+        m = decode(self.channels(values))
+        if self.normals == "flat":
+            m = SVBRDF(m.albedo, m.roughness, m.specular, self._fixed((0.0, 0.0, 1.0), 3, m.albedo))
+        return m
 
     # ------------------------------------------------------------------ the start
     def initial_values(self, data: ModelData, n: int, seed: int = 0) -> dict:
