@@ -26,6 +26,33 @@ pre{padding:.6em;overflow-x:auto}.note{color:#555;font-size:.9em}
 """
 
 
+def lighting(view) -> str:
+    """How a view is lit, in words: its point lights (a collocated flash or a lamp, with its power) and its
+    environment light (the map's name, size, scale), e.g. ``"flash (power 10) + environment 'studio' 32x64"``.
+
+    Example:
+        >>> from bayes_brdf.render.cameras import PerspectiveCamera
+        >>> from bayes_brdf.render.environment import studio
+        >>> from bayes_brdf.render.views import View
+        >>> v = View.collocated(PerspectiveCamera(position=(0, 0, 3)), power=10)
+        >>> lighting(v), lighting(View(v.camera, (studio(8),)))
+        ('flash (power 10)', "environment 'studio' 16x8, scale 1 (alone)")
+    """
+    parts = []
+    cam = tuple(float(x) for x in view.camera.position)
+    for light in view.point_lights:
+        pw = sorted(set(round(float(x), 4) for x in light.power))
+        power = f"power {pw[0]:g}" if len(pw) == 1 else "power " + "/".join(f"{float(x):g}" for x in light.power)
+        at = "" if tuple(light.position) == cam else f" at {tuple(round(float(x), 3) for x in light.position)}"
+        parts.append(("flash" if not at else "point light") + f" ({power}){at}")
+    env = view.environment
+    if env is not None:
+        h, w, _ = env.radiance.shape
+        parts.append(f"environment '{env.name or env.digest}' {w}x{h}, scale {env.scale:g}"
+                     + ("" if parts else " (alone)"))
+    return " + ".join(parts)
+
+
 class Report:
     """Collects blocks and writes one HTML file (:meth:`write`)."""
 
@@ -63,6 +90,17 @@ class Report:
         head = "<tr>" + "".join(cell(h, "th") for h in header) + "</tr>" if header else ""
         body = "".join("<tr>" + "".join(cell(v) for v in r) + "</tr>" for r in rows)
         self.blocks.append(f"<table>{head}{body}</table>")
+
+    def views(self, views, roles=None, indices=None):
+        """A table of ``views``: index, role (``roles[i]``, e.g. fitted / held out), camera and **lighting**
+        (:func:`lighting`), so a reader sees which photos were lit by a flash and which by an environment."""
+        idx = list(range(len(views))) if indices is None else list(indices)
+        rows = []
+        for k, (i, v) in enumerate(zip(idx, views)):
+            p = tuple(round(float(x), 3) for x in v.camera.position)
+            rows.append([i] + ([roles[k]] if roles is not None else []) + [f"{type(v.camera).__name__} at {p}",
+                                                                           lighting(v)])
+        self.table(rows, header=["view"] + (["role"] if roles is not None else []) + ["camera", "lighting"])
 
     def html(self) -> str:
         return (f"<!doctype html><html><head><meta charset='utf-8'><title>{html.escape(self.title)}</title>"

@@ -4,7 +4,8 @@ Writes to ``--out``: the posterior and its MAP / mean maps, per-site std maps (E
 held-out view the image-space std (Eq. 11), the MAP render and its absolute error against the photo
 (EXR + PNG), plus ``summary.json``: Pearson and Spearman correlation between predicted std and absolute
 error over the held-out pixels, the coverage of the central 50 % and 90 % posterior-predictive intervals,
-and the wall time of each stage. The coverage is also given with the noise level the fitted photos show
+and the wall time of each stage, and ``report.html`` (self-contained: the views with how each is lit -- flash,
+environment or both -- the held-out numbers and maps). The coverage is also given with the noise level the fitted photos show
 (the Laplace scale of the MAP's residuals there) in place of the model's ``sigma``: when that fixes the
 coverage, the model's noise was set too low; when it does not, the error is model mismatch. Saturated (clipped) pixels are left out of every held-out number: they
 only bound the radiance from below.
@@ -84,6 +85,7 @@ def run(a) -> int:
     times["total"] = time.perf_counter() - t0
     summary["seconds"] = times
     write_json(out / "summary.json", summary)
+    write_report(out, summary, full, post)
     msg = f"{post} from views {fit_idx} {timing(post)}"
     if held_idx:
         h = summary["heldout"]
@@ -93,7 +95,7 @@ def run(a) -> int:
                 f"{h['coverage_with_fitted_sigma']['50']:.2f}, {h['coverage_with_fitted_sigma']['90']:.2f})")
     else:
         msg += "; every view was fitted, so nothing is held out (give --views or --holdout to check against photos)"
-    print(msg + f" -> {out}/ (summary.json, map/, mean/, std/{', heldout/' if held_idx else ''})")
+    print(msg + f" -> {out}/ (report.html, summary.json, map/, mean/, std/{', heldout/' if held_idx else ''})")
     hint = sigma_hint(summary)
     if hint:
         print(hint)
@@ -112,3 +114,58 @@ def sigma_hint(summary: dict) -> str:
     return (f"note: the fitted photos differ from the MAP render by a Laplace scale of {fitted:.3f}, "
             f"{fitted / model:.1f}x the model's sigma {model:g}, so the intervals are too narrow; "
             f"rerun with --model-param sigma={fitted:.2f} for calibrated ones (see docs/guidance.md)")
+
+
+def write_report(out, summary: dict, full, post):
+    """``out/report.html``: the run, the views with their lighting, the held-out numbers and maps."""
+    from pathlib import Path
+
+    from ..report import Report, lighting
+
+    fit_idx, held_idx = summary["fit_views"], summary["heldout_views"]
+    name = Path(str(summary["capture"])).resolve().name
+    rep = Report(f"bayes-brdf fit: '{name}'")
+    model = summary["model"].get("model", "model") if isinstance(summary["model"], dict) else summary["model"]
+    d = summary.get("diagnostics") or {}
+    rep.text(f"{model} sampled by {summary['sampler']} from views {fit_idx} at {summary['resolution']}x"
+             f"{summary['resolution']}; noise sigma {float(post.noise_sigma or 0):.4g}; convergence checks "
+             + ("passed." if d.get("converged", True) else "failed (see summary.json: diagnostics)."))
+    rep.heading("Views and their lighting")
+    idx = fit_idx + held_idx
+    views = [full.views[i] for i in idx]
+    envs = {v.environment for v in views if v.environment is not None}
+    if envs:
+        lit = sum(v.environment is not None for v in views)
+        alone = sum(v.environment is not None and not v.point_lights for v in views)
+        rep.text(f"{lit} of the {len(views)} views are lit by an environment light "
+                 f"({', '.join(repr(e.name or e.digest) for e in envs)}), {alone} of them by the environment alone; "
+                 "the environment is shaded by its precomputed per-pixel transfer (docs/environment.md).")
+    else:
+        rep.text("Every view is lit by point lights only (no environment).")
+    rep.views(views, ["fitted"] * len(fit_idx) + ["held out"] * len(held_idx), indices=idx)
+    h = summary.get("heldout")
+    if h:
+        rep.heading("Held-out views: predicted uncertainty against the actual error")
+        rep.table([["held-out pixels", h["pixels"]], ["clipped pixels left out", h["saturated_left_out"]],
+                   ["coverage of the 50 % interval", h["coverage"]["50"]],
+                   ["coverage of the 90 % interval", h["coverage"]["90"]],
+                   ["coverage 50 % / 90 % with the fitted noise "
+                    f"{h.get('fitted_sigma', float('nan')):.3g}",
+                    f"{h['coverage_with_fitted_sigma']['50']:.3f} / {h['coverage_with_fitted_sigma']['90']:.3f}"
+                    if "coverage_with_fitted_sigma" in h else None],
+                   ["Pearson(std, |error|)", h["pearson"]], ["Spearman(std, |error|)", h["spearman"]]],
+                  header=["held-out check", "value"])
+        for v, i in zip(h["views"], held_idx):
+            tag = v["view"]
+            rep.text(f"{tag} ({lighting(full.views[i])}): mean |error| {v['mean_abs_error']:.4g}, mean std "
+                     f"{v['mean_std']:.4g}, Spearman {v['spearman']:.2f}, coverage 50 % {v['coverage']['50']:.2f}, "
+                     f"90 % {v['coverage']['90']:.2f}")
+            rep.images([(out / "heldout" / f"{tag}_photo.png", "photo"),
+                        (out / "heldout" / f"{tag}_map_render.png", "MAP render"),
+                        (out / "heldout" / f"{tag}_error.png", "|MAP render - photo|"),
+                        (out / "heldout" / f"{tag}_std.png", "predicted std (Eq. 11)")], width=200)
+    else:
+        rep.text("Every view was fitted: nothing is held out.", cls="note")
+    rep.heading("Posterior std of the maps (Eq. 9)")
+    rep.images([(p, p.stem) for p in sorted((out / "std").glob("*.png"))], width=200)
+    return rep.write(out / "report.html")
