@@ -6,6 +6,14 @@ render-noise entropy ``h_noise`` (Eq. 18), summed over the pixels. Counted pixel
 sample, and, for textured models, only one pixel per texel (the paper's footprint rule for redundant
 pixels: :meth:`GBuffer.unique_pixel_mask`).
 
+Candidates may be lit by an environment (:class:`~bayes_brdf.render.environment.EnvironmentLight`), alone or
+with point lights, mixed in one call with flash-only candidates. The environment's per-pixel transfer
+(:mod:`~bayes_brdf.render.transfer`) is part of a candidate's G-buffer: computed once per candidate when the
+candidates' G-buffers are built (and kept with them in :data:`~bayes_brdf.render.gbuffer.GBUFFERS`, so a set
+scored again is not recomputed), never per particle; each particle's render then reads its tables, at about
+the cost of one more light. That precomputation is most of the cost of an environment-lit candidate (see
+``docs/guidance.md``, "Under an environment light").
+
 Example:
     >>> import torch
     >>> from bayes_brdf.render import SVBRDF, PlanarSample, collocated_views
