@@ -273,12 +273,24 @@ class Posterior:
         from safetensors.torch import save_file
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
-        t = {f"site/{k}": v.contiguous().cpu() for k, v in self.particles.items()}
-        t["energies"] = self.energies.contiguous().cpu()
+        seen = set()
+
+        def own(v):
+            """``v`` contiguous on the CPU, copied when its memory is another entry's (safetensors refuses shared
+            memory: a site whose transform is the identity, e.g. the latent decoder's flat W+, is a view of ``z``)."""
+            v = v.contiguous().cpu()
+            ptr = v.untyped_storage().data_ptr()
+            if ptr in seen:
+                return v.clone()
+            seen.add(ptr)
+            return v
+
+        t = {f"site/{k}": own(v) for k, v in self.particles.items()}
+        t["energies"] = own(self.energies)
         if self.z is not None:
-            t["z"] = self.z.contiguous().cpu()
+            t["z"] = own(self.z)
         for k, v in (self.map_values or {}).items():
-            t[f"map/{k}"] = v.contiguous().cpu()
+            t[f"map/{k}"] = own(v)
         meta = self.meta
         if self._surface is not None:      # the geometry travels in the file (a mesh with its arrays)
             from .render.scene import surface_state
