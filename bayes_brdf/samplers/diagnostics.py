@@ -98,6 +98,7 @@ class Diagnostics:
     checks: dict = field(default_factory=dict)
     steps: int = 0
     dim: int = 0
+    sampler: str = ""         # the sampler that ran (the remedy does not advise the sampler that failed)
 
     @property
     def converged(self) -> bool:
@@ -128,9 +129,10 @@ class Diagnostics:
         twice as many. Once it has settled, a low-dimensional posterior whose particles still sit far
         above its energies (``energy_spread``: a posterior narrower than the sampler's steps) gets
         another sampler: more steps of the same one do not change a settled ensemble (measured,
-        docs/calibration.md).
+        docs/calibration.md); emcee itself gets more steps (its burn-in, which relocates walkers left
+        behind, is half the run).
         """
-        if self.settled and "energy_spread" in self.failed:
+        if self.settled and "energy_spread" in self.failed and self.sampler != "emcee":
             return ("the particles sit far above the posterior's energies (a posterior narrower than the sampler's "
                     "steps; more steps do not help): use the emcee sampler "
                     + ("(--sampler emcee --overwrite)" if cli else "(sampler=\"emcee\")"))
@@ -149,11 +151,12 @@ class Diagnostics:
 
     def to_dict(self) -> dict:
         return {"converged": self.converged, "failed": self.failed, "steps": self.steps, "dim": self.dim,
-                "checks": {k: dict(v) for k, v in self.checks.items()}}
+                **({"sampler": self.sampler} if self.sampler else {}), "checks": {k: dict(v) for k, v in self.checks.items()}}
 
     @classmethod
     def from_dict(cls, d: dict) -> "Diagnostics":
-        return cls(dict(d.get("checks") or {}), int(d.get("steps") or 0), int(d.get("dim") or 0))
+        return cls(dict(d.get("checks") or {}), int(d.get("steps") or 0), int(d.get("dim") or 0),
+                   str(d.get("sampler") or ""))
 
 
 def _fmt(v) -> str:
@@ -321,7 +324,7 @@ def stability(z: Tensor, earlier: Tensor, groups: int = 1) -> tuple[float, int, 
 
 # ---------------------------------------------------------------- all of them
 def diagnose(energies: Tensor, tracked: Tensor | None, z: Tensor, grad: Tensor | None, *, chains: bool,
-             steps: int, earlier: Tensor | None = None, groups: int = 1) -> Diagnostics:
+             steps: int, earlier: Tensor | None = None, groups: int = 1, sampler: str = "") -> Diagnostics:
     """Diagnostics of a run.
 
     Args:
@@ -333,6 +336,7 @@ def diagnose(energies: Tensor, tracked: Tensor | None, z: Tensor, grad: Tensor |
         steps: the run's length (for the remedy's step count).
         earlier: the particles three quarters into the run ``[n, D]`` (the stability checks), or ``None``.
         groups: independent ensembles in ``z`` (group by group).
+        sampler: the sampler's name (for the remedy).
     """
     checks = {}
     e = energies.to(torch.float64)
@@ -374,4 +378,4 @@ def diagnose(energies: Tensor, tracked: Tensor | None, z: Tensor, grad: Tensor |
     if low and n >= 2 and T:
         spread = float(e[-1].var()) / (z.shape[1] / 2)
         checks["energy_spread"] = _check(spread, ENERGY_SPREAD_MAX, spread <= ENERGY_SPREAD_MAX)
-    return Diagnostics(checks, steps, int(z.shape[1]))
+    return Diagnostics(checks, steps, int(z.shape[1]), sampler)

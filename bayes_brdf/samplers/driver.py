@@ -336,7 +336,7 @@ def diagnose_run(sampler, potential, rec: _Recorder, z: Tensor, steps: int, grou
     energies, tracked = rec.second_half(steps)
     earlier = rec.earlier(steps)
     return diagnose(energies, tracked, z, grad, chains=sampler.particles_are_chains(z.shape[1]), steps=steps,
-                    earlier=None if earlier is None else earlier.to(z), groups=groups)
+                    earlier=None if earlier is None else earlier.to(z), groups=groups, sampler=sampler.name)
 
 
 def _evals(potential) -> int:

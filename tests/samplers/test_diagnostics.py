@@ -82,7 +82,7 @@ def test_converged_run_passes_an_underrun_fails_and_its_remedy_passes():
     msg = d.message(cli=True)
     assert msg.startswith("not converged: ") and "--steps 80" in msg and "\n" not in msg
     assert d.message() .endswith("rerun with steps=80")
-    assert set(d.to_dict()) == {"converged", "failed", "steps", "dim", "checks"}
+    assert set(d.to_dict()) == {"converged", "failed", "steps", "dim", "sampler", "checks"}
     # the remedy, followed as often as it says so, passes
     steps = 40
     while not d.converged:
@@ -96,6 +96,9 @@ def test_a_settled_low_dimensional_ensemble_far_above_the_posterior_is_sent_to_e
     checks = {"mean_shift": {"value": 0.0, "threshold": 0.05, "ok": True},
               "energy_spread": {"value": 300.0, "threshold": 10.0, "ok": False}}
     assert "emcee" in Diagnostics(checks, 2000, dim=2).message()
+    # emcee itself is not sent to emcee: more steps (its burn-in relocates walkers left behind)
+    own = Diagnostics(checks, 2000, dim=2, sampler="emcee")
+    assert "steps=4000" in own.message() and Diagnostics.from_dict(own.to_dict()).sampler == "emcee"
     drifting = {**checks, "energy_drift": {"value": 9.0, "threshold": 5.0, "ok": None}}
     assert "steps=4000" in Diagnostics(drifting, 2000, dim=2).message()
     stein = {"stein_ratio": {"value": 0.2, "threshold": [0.5, 2.0], "ok": False}}
