@@ -6,8 +6,11 @@ import math
 import time
 from pathlib import Path
 
-from .common import positive_int
+from .common import positive_float, positive_int
 from .infer import add_sampling_args, load, sample
+
+#: --candidate-light: how generated and held-out candidates are lit
+LIGHTINGS = ("capture", "flash", "environment", "both")
 
 
 def add_parser(sub):
@@ -16,13 +19,23 @@ def add_parser(sub):
                                    "score candidate views by mutual information (Eq. 18) and print the best --k, "
                                    "with hypersphere exclusion of --radius degrees between picks. Candidates: the "
                                    "capture's views that were not fitted ('heldout', e.g. to replay a session), or "
-                                   "generated flash views (fibonacci:N, sobol:N) at the capture's camera distance, "
-                                   "or a JSON file of views. Writes recommend.json and a plot of the candidates.")
+                                   "generated views (fibonacci:N, sobol:N) at the capture's camera distance, lit as "
+                                   "--candidate-light says (by default as the capture: its environment map and/or "
+                                   "its flash), or a JSON file of views. Writes recommend.json and a plot of the "
+                                   "candidates.")
     add_sampling_args(r, "out/recommend")
     r.add_argument("--posterior", default=None,
                    help="a posterior.safetensors written by fit/infer (skips fitting; its model must be a preset)")
     r.add_argument("--candidates", default="heldout",
                    help="heldout, fibonacci:N, sobol:N or a JSON file of views (default: %(default)s)")
+    r.add_argument("--candidate-light", default="capture", choices=LIGHTINGS,
+                   help="how generated and held-out candidates are lit: capture (as the capture's views: its "
+                        "environment map and/or a flash at the camera), flash (a flash at the camera alone), "
+                        "environment (the capture's environment map alone), both (the environment map and a flash "
+                        "at the camera); a JSON file's views keep their own lights (default: %(default)s)")
+    r.add_argument("--flash-power", type=positive_float, default=None,
+                   help="power of the candidates' flash (default: the capture's flash's; needed for "
+                        "--candidate-light flash or both when the capture has no flash)")
     r.add_argument("--k", type=positive_int, default=3, help="views to recommend (default: %(default)s)")
     r.add_argument("--radius", type=float, default=10.0,
                    help="exclusion radius between picks, degrees (default: %(default)s)")
@@ -37,7 +50,43 @@ def add_parser(sub):
     r.set_defaults(func=run)
 
 
-def _candidates(spec: str, full, fitted):
+def _lighting(full, choice: str, flash_power):
+    """``(environment or None, flash (power, falloff) or None)`` that ``--candidate-light choice`` puts on
+    generated and held-out candidates; one line if the capture lacks what is asked."""
+    from ..errors import InputError
+
+    envs = list(dict.fromkeys(v.environment for v in full.views if v.environment is not None))
+    points = [l for v in full.views for l in v.point_lights]
+    want_env = choice in ("environment", "both") or (choice == "capture" and bool(envs))
+    want_flash = choice in ("flash", "both") or (choice == "capture" and bool(points))
+    env = flash = None
+    if want_env:
+        if not envs:
+            raise InputError(f"--candidate-light {choice}: the capture's views have no environment map to light "
+                             "the candidates with", fix="use --candidate-light flash, or a capture lit by an "
+                                                        "environment (render --env)")
+        if len(envs) > 1:
+            raise InputError(f"--candidate-light {choice}: the capture's views are lit by {len(envs)} different "
+                             "environment maps", fix="give a JSON file of candidate views")
+        env = envs[0]
+    if want_flash:
+        if flash_power is None and not points:
+            raise InputError(f"--candidate-light {choice}: the capture's views have no flash to copy onto the "
+                             "candidates", fix="give the flash's power with --flash-power")
+        flash = (flash_power if flash_power is not None else points[0].power,
+                 points[0].falloff if points else True)
+    return env, flash
+
+
+def _lit(camera, name, env, flash):
+    from ..render.lights import PointLight
+    from ..render.views import View
+
+    lights = () if flash is None else (PointLight(camera.position, flash[0], flash[1]),)
+    return View(camera, lights + (() if env is None else (env,)), name)
+
+
+def _candidates(spec: str, full, fitted, light: str = "capture", flash_power=None):
     from ..errors import InputError
     from ..render.surface import PlanarSample
     from ..render.views import View, collocated_views
@@ -47,9 +96,16 @@ def _candidates(spec: str, full, fitted):
         if not idx:
             raise InputError("no held-out views to rank: every view is fitted",
                              fix="fit fewer --views, or use --candidates fibonacci:N")
-        return [full.views[i] for i in idx], idx
+        views = [full.views[i] for i in idx]
+        if light != "capture" or flash_power is not None:        # the held-out cameras, lit as asked
+            env, flash = _lighting(full, light, flash_power)
+            views = [_lit(v.camera, v.name, env, flash) for v in views]
+        return views, idx
     p = Path(spec)
     if p.suffix.lower() == ".json":
+        if light != "capture" or flash_power is not None:
+            raise InputError("--candidate-light and --flash-power light generated and held-out candidates only: "
+                             "a JSON file's views keep their own lights", fix="give the lights in the file")
         if not p.is_file():
             raise InputError("candidate views file not found", where=p)
         try:
@@ -64,20 +120,17 @@ def _candidates(spec: str, full, fitted):
         raise InputError(f"bad --candidates '{spec}'", fix="use heldout, fibonacci:N, sobol:N or a JSON file of views")
     from ..render.cameras import PerspectiveCamera
 
+    env, flash = _lighting(full, light, flash_power)
     v0 = full.views[0]
     centre = full.surface.center
     dist = sorted(math.dist(v.camera.position, centre) for v in full.views)[len(full.views) // 2]
-    if not v0.point_lights:
-        raise InputError(f"--candidates {spec}: the capture's views have no flash to copy onto the generated views",
-                         fix="give a JSON file of candidate views")
-    light = v0.point_lights[0]
     if isinstance(v0.camera, PerspectiveCamera):    # like the capture's cameras, around its geometry's centre
         kw = dict(camera="perspective", fov=v0.camera.fov, target=centre,
                   max_zenith=60 if isinstance(full.surface, PlanarSample) else 90)
     else:
         kw = dict(camera="rectified", max_zenith=60)
-    views = collocated_views(int(num), dist, method=kind, resolution=v0.resolution, power=light.power,
-                             falloff=light.falloff, **kw)
+    cams = collocated_views(int(num), dist, method=kind, resolution=v0.resolution, **kw)
+    views = [_lit(v.camera, v.name, env, flash) for v in cams]
     return views, list(range(len(views)))
 
 
@@ -93,11 +146,8 @@ def run(a) -> int:
     t0 = time.perf_counter()
     obs, full, out = load(a, "recommend", full=True)
     fitted = list(range(len(full))) if a.views is None else list(a.views)
-    cands, labels = _candidates(a.candidates, full, fitted)      # a bad --candidates fails before the fit
-    if any(v.environment is not None for v in cands):
-        raise InputError("recommend cannot rank views lit by an environment map yet (view configurations are "
-                         "made of point-light positions)", fix="rank flash-only candidate views (fibonacci:N, "
-                                                               "sobol:N or a JSON file of views)")
+    # a bad --candidates or --candidate-light fails before the fit
+    cands, labels = _candidates(a.candidates, full, fitted, a.candidate_light, a.flash_power)
     if a.posterior:
         post = Posterior.load(a.posterior)
         if post.model is None:
@@ -115,7 +165,8 @@ def run(a) -> int:
     rec = recommend(post, cands, a.k, method=a.method, radius=a.radius, surface=full.surface, seed=a.seed,
                     scores=scores, offset=len(fitted))
     result = {"capture": str(a.capture), "fitted_views": fitted, "candidates": a.candidates, "method": a.method,
-              "k": a.k, "radius_deg": a.radius, "estimator": a.estimator, "noise_var": nv,
+              "candidate_light": a.candidate_light, "candidates_lit_by": _describe(cands), "k": a.k,
+              "radius_deg": a.radius, "estimator": a.estimator, "noise_var": nv,
               "fit_seconds": t_fit,
               "recommended": [labels[i] for i in rec.indices], **rec.to_dict()}
     if scores is not None:
@@ -127,7 +178,7 @@ def run(a) -> int:
                         centre=full.surface.center)
     write_json(out / "recommend.json", result)
     what = "view" if a.candidates == "heldout" else "candidate"
-    print(f"recommended ({a.method}, from {len(cands)} candidates): "
+    print(f"recommended ({a.method}, from {len(cands)} candidates lit by {_describe(cands)}): "
           + ", ".join(f"{what} {labels[i]}" + (f" (MI {float(scores.mi[i]):.0f} nats)" if scores is not None else "")
                       for i in rec.indices) + f" -> {out}/recommend.json")
     if scores is not None and a.candidates == "heldout":
@@ -136,3 +187,13 @@ def run(a) -> int:
     if scores is not None and nv == 0 and bool((scores.mi < 0).any()):
         print("(the noise-free score is a differential entropy, so it can be negative: only the order matters)")
     return 0
+
+
+def _describe(views) -> str:
+    """What lights the candidates, in words: 'flash', 'environment', 'environment + flash', 'point lights'
+    (lights away from the camera), several joined by ' / '."""
+    def one(v):
+        points = v.point_lights
+        flash = "flash" if all(tuple(l.position) == tuple(v.camera.position) for l in points) else "point lights"
+        return " + ".join((["environment"] if v.environment is not None else []) + ([flash] if points else []))
+    return " / ".join(dict.fromkeys(one(v) for v in views))
