@@ -156,4 +156,52 @@ def views_at(obs: Observations):
     return list(obs.views)
 
 
+#: the environment map of the environment-lit experiments (``env = "ballroom"``): the psdr-cuda ballroom of
+#: ``../shared/data`` (1024 x 512, lamps of radiance up to 141 on a mean of 0.45)
+BALLROOM = SHARED_DATA / "psdr_assets" / "ballroom_1k.exr"
+
+
+def environment_light(spec: str = "ballroom", scale: float = 1.0, rotate: float = 0.0):
+    """``(EnvironmentLight, description)`` of an experiment's ``env`` setting: ``"ballroom"`` (:data:`BALLROOM`;
+    where the file is missing, the built-in :func:`~bayes_brdf.render.environment.studio` instead, with a warning
+    and the description saying so), ``"studio"`` (file-free) or the path of an EXR / Radiance HDR map. The map's
+    zenith is put on ``+z`` and turned by ``rotate`` degrees about it (:func:`~bayes_brdf.render.environment.z_up`),
+    its radiance times ``scale``.
+
+    Example:
+        >>> env, text = environment_light("studio", 2.0, 90)
+        >>> env.scale, text
+        (2.0, 'studio() 64x32, scale 2, rotate 90 deg')
+    """
+    import warnings
+
+    from ..render.environment import EnvironmentLight, studio, z_up
+
+    spec, scale, rotate = str(spec), float(scale), float(rotate)
+    note = ""
+    if spec == "ballroom" and not BALLROOM.is_file():
+        note = f" (fallback: the ballroom map is not at {BALLROOM})"
+        warnings.warn(f"env=ballroom: {BALLROOM} is missing; using the built-in studio() map instead "
+                      "(put ../shared/data beside the repository for the paper's lighting)", stacklevel=2)
+        say("env=ballroom: %s is missing; using studio() instead", BALLROOM)
+        spec = "studio"
+    if spec == "studio":
+        base = studio()
+        env = EnvironmentLight(base.radiance, scale, z_up(rotate), name="studio()")
+    else:
+        path = BALLROOM if spec == "ballroom" else Path(spec)
+        env = EnvironmentLight.from_file(path, scale, z_up(rotate))
+    h, w = env.radiance.shape[:2]
+    return env, f"{env.name} {w}x{h}, scale {scale:g}, rotate {rotate:g} deg{note}"
+
+
+def flat_normals(maps):
+    """``maps`` with a flat normal map (an environment light's transfer is for the surface's own normals)."""
+    from dataclasses import replace
+
+    flat = torch.zeros_like(maps.normal)
+    flat[2] = 1.0
+    return replace(maps, normal=flat)
+
+
 __all__ = ["SURFACE", "synthetic", "fit", "write_json", "render"]

@@ -8,9 +8,15 @@ of ``counts`` (3, 10, 100 in the paper):
   60 degrees of the zenith (the first ``k`` Sobol points, so the smaller sets are subsets of the larger);
 * ``light_stage``: the light is not at the camera: ``C`` rectified cameras times ``L`` point lights, both
   at distance 3 on Sobol directions within 60 degrees, ``C * L = count`` (``C`` the largest divisor
-  ``<= sqrt(count)``: 1 x 3, 2 x 5, 10 x 10); stands in for the paper's second (environment) lighting.
+  ``<= sqrt(count)``: 1 x 3, 2 x 5, 10 x 10): a third configuration, the light off the camera;
+* ``environment`` (the paper's second lighting): the collocated rectified cameras (the same Sobol directions),
+  lit by the known environment ``env`` alone (no flash; ``"ballroom"``, the psdr-cuda ballroom map of
+  ``../shared/data``, the built-in ``studio()`` with a warning where that file is missing, ``"studio"``, or a
+  map's path), its zenith on ``+z`` turned by ``env_rotate`` degrees, radiance times ``env_scale``. The truth's
+  normal map is made flat (the environment's precomputed transfer is for the surface's own normals), so this
+  configuration's wood differs from the others' by its board grooves' bevelled normals only.
 
-Normals and specular albedo are known (the truth's); RGB albedo and roughness are inferred per texel with
+Normals and specular albedo are known (the truth's; flat under the environment); RGB albedo and roughness are inferred per texel with
 ``FIGURE_SAMPLER`` (the former ``spos_maps``) (``particles`` particles, ``steps`` steps of size ``step_size``), started from prior draws kept
 ``init_margin`` off the bounds. Two independent runs (sampler seeds ``2 seed`` and ``2 seed + 1``) give the
 two point estimates (the MAP particle of each, Eq. 7, not refined) and their L1 roughness error maps; the
@@ -34,36 +40,54 @@ import time
 import numpy as np
 import torch
 
-from .common import FIGURE_SAMPLER, PAPER_SIGMA, SURFACE, prepare, say, synthetic, write_json
+from .common import (FIGURE_SAMPLER, PAPER_SIGMA, SURFACE, environment_light, flat_normals, prepare, say, synthetic,
+                     write_json)
 from .fig2_particles import _ints, start
 from ..errors import InputError
 from ..inference import infer
 from ..models.material import per_texel
 from ..plots import line_plot, map_panel, panel_grid
-from ..render.views import hemisphere_directions, light_stage_views
+from ..render.views import View, collocated_views, hemisphere_directions, light_stage_views
 
 DESCRIPTION = "Fig. 3: parameter-space std (Eq. 9) and MAP errors of roughness vs number of observations"
 
+_ENV = {"env": "ballroom", "env_scale": 1.0, "env_rotate": 0.0}
 PRESETS = {
     "small": {"material": "wood", "resolution": 16, "counts": "3,10,100", "configs": "collocated,light_stage",
-              "particles": 20, "steps": 500, "step_size": 0.02, "init_margin": 0.05, "far": 0.1},
+              "particles": 20, "steps": 500, "step_size": 0.02, "init_margin": 0.05, "far": 0.1, **_ENV},
     "full": {"material": "wood", "resolution": 64, "counts": "3,10,100", "configs": "collocated,light_stage",
-             "particles": 20, "steps": 4000, "step_size": 0.005, "init_margin": 0.05, "far": 0.1},
+             "particles": 20, "steps": 4000, "step_size": 0.005, "init_margin": 0.05, "far": 0.1, **_ENV},
+    # the environment-lit rows alone (rectified views of the plane shade an environment with the eager reference
+    # kernel today, about 16x a flash's cost per pixel): ``env_small`` is what the test runs (seconds),
+    # ``env_full`` the full preset's sampler at 32^2 texels (docs/experiments.md)
+    "env_small": {"material": "wood", "resolution": 8, "counts": "3,10,100", "configs": "environment",
+                  "particles": 20, "steps": 400, "step_size": 0.02, "init_margin": 0.05, "far": 0.1, **_ENV},
+    "env_full": {"material": "wood", "resolution": 32, "counts": "3,10,100", "configs": "environment",
+                 "particles": 20, "steps": 4000, "step_size": 0.005, "init_margin": 0.05, "far": 0.1, **_ENV},
 }
-CONFIGS = ("collocated", "light_stage")
+CONFIGS = ("collocated", "light_stage", "environment")
 RADIUS, POWER, MAX_ZENITH = 3.0, 10.0, 60.0
 
 
-def observations(config: str, material: str, resolution: int, count: int, seed: int):
-    """``(truth, Observations)`` of ``count`` views in lighting configuration ``config``."""
+def observations(config: str, material: str, resolution: int, count: int, seed: int, env=None):
+    """``(truth, Observations)`` of ``count`` views in lighting configuration ``config`` (``env``: the
+    :class:`~bayes_brdf.render.environment.EnvironmentLight` of ``"environment"``)."""
     from ..guidance.acquisition import SyntheticCapture
 
     if config == "collocated":
         return synthetic(material, resolution, views=count, seed=seed, radius=RADIUS, power=POWER,
                          max_zenith=MAX_ZENITH)
-    if config != "light_stage":
-        raise InputError(f"unknown lighting configuration '{config}'", fix=f"use {' or '.join(CONFIGS)}")
+    if config not in CONFIGS:
+        raise InputError(f"unknown lighting configuration '{config}'", fix=f"use one of {', '.join(CONFIGS)}")
     truth, _ = synthetic(material, resolution, views=1, seed=seed)
+    if config == "environment":
+        if env is None:
+            raise InputError("the environment configuration needs its environment light", fix="pass env=...")
+        truth = flat_normals(truth)
+        vs = [View(v.camera, (env,), name=f"env_{v.name}")
+              for v in collocated_views(count, RADIUS, method="sobol", camera="rectified", resolution=resolution,
+                                        power=POWER, max_zenith=MAX_ZENITH, seed=seed)]
+        return truth, SyntheticCapture(truth, SURFACE, seed=seed)(vs)
     c = max(d for d in range(1, int(math.isqrt(count)) + 1) if count % d == 0)
     vs = light_stage_views(hemisphere_directions(c, "sobol", MAX_ZENITH, seed=seed),
                            hemisphere_directions(count // c, "sobol", MAX_ZENITH, seed=seed + 1),
@@ -86,7 +110,7 @@ def _spearman(a: torch.Tensor, b: torch.Tensor) -> float:
 
 def run(out, preset: str = "small", seed: int = 0, progress: bool = False, **overrides) -> dict:
     """Run the experiment; write ``fig3_<config>.png`` per configuration, ``fig3_std_vs_observations.png``
-    and ``fig3.json``."""
+    and ``fig3.json`` (``lighting``: each configuration's lights in words, also in its ``summary``)."""
     cfg, out = prepare(__name__, preset, overrides, out)
     counts = _ints(cfg["counts"])
     configs = [c for c in str(cfg["configs"]).replace(" ", "").split(",") if c]
@@ -99,11 +123,17 @@ def run(out, preset: str = "small", seed: int = 0, progress: bool = False, **ove
     params = {"step_size": float(cfg["step_size"])}
     seeds = (2 * seed, 2 * seed + 1)
     t_all = time.perf_counter()
+    env, env_text = environment_light(cfg["env"], cfg["env_scale"], cfg["env_rotate"]) \
+        if "environment" in configs else (None, None)
+    lighting = {"collocated": f"collocated flash (power {POWER:g}, distance {RADIUS:g})",
+                "light_stage": f"light stage: point lights (power {POWER:g}, distance {RADIUS:g}) off the cameras",
+                "environment": f"environment alone: {env_text}"}
     results, summary = {}, {}
     for config in configs:
         rows, maps = {}, {}
+        t_config = time.perf_counter()
         for k in counts:
-            truth, obs = observations(config, cfg["material"], R, k, seed)
+            truth, obs = observations(config, cfg["material"], R, k, seed, env=env)
             model = per_texel(R, specular=truth.specular, normals=truth.normal, sigma=PAPER_SIGMA)
             tr = truth.roughness[0]
             ests, errs, stds, row = [], [], [], {"runs": []}
@@ -128,6 +158,7 @@ def run(out, preset: str = "small", seed: int = 0, progress: bool = False, **ove
             q = [_quartiles(stds[0], e) for e in errs]
             row.update({
                 "views": len(obs.views),
+                "mean_radiance": float(obs.images.mean()),
                 "mean_std": float(np.mean([r["mean_std"] for r in row["runs"]])),
                 "mean_error": float(np.mean([float(e.mean()) for e in errs])),
                 "mean_robust_spread": float(np.mean([r["mean_robust_spread"] for r in row["runs"]])),
@@ -148,7 +179,7 @@ def run(out, preset: str = "small", seed: int = 0, progress: bool = False, **ove
                 panels.append(map_panel(pick(maps[k]), f"{name}, {k} obs.", vmax=vm))
         panel_grid(out / f"fig3_{config}.png", panels, ncols=len(counts), style="compact",
                    title=f"Fig. 3 ({config}): roughness, {cfg['material']} {R}x{R}, {cfg['particles']} particles, "
-                         f"{cfg['steps']} steps")
+                         f"{cfg['steps']} steps" + (f"\nlit by {env_text}" if config == "environment" else ""))
         results[config] = {str(k): rows[k] for k in counts}
         ms = [rows[k]["mean_std"] for k in counts]
         summary[config] = {
@@ -160,6 +191,8 @@ def run(out, preset: str = "small", seed: int = 0, progress: bool = False, **ove
                                                for k in counts},
             "spearman_std_error": {str(k): round(float(np.mean(rows[k]["spearman_std_error"])), 3) for k in counts},
             "std_falls": all(a > b for a, b in zip(ms, ms[1:])),
+            "lighting": lighting[config],
+            "seconds": round(time.perf_counter() - t_config, 1),
         }
     series = {}
     for config in configs:
@@ -171,6 +204,7 @@ def run(out, preset: str = "small", seed: int = 0, progress: bool = False, **ove
               title="Fig. 3: roughness std (Eq. 9), robust spread\n(1.4826 MAD) and MAP L1 error")
     summary["seconds"] = round(time.perf_counter() - t_all, 1)
     res = {"experiment": "fig3", "preset": preset, "seed": seed, "config": cfg, "rows": results, "summary": summary,
+           "lighting": {c: lighting[c] for c in configs},
            "paper": "parameter-space uncertainty falls as observations increase; it does not correlate closely "
                     "with the point estimates' errors, but low uncertainty goes with low error"}
     write_json(out, "fig3", res)

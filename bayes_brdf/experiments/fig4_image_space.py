@@ -32,6 +32,16 @@ under the object's equator, where no observed camera goes: it sees the underside
 50 degrees zenith, the light at 50 degrees zenith 90 degrees of azimuth away: a collocated capture never has the
 light off the camera). Every statistic is over the pixels that see the object; ``seen_texels`` repeats the
 correlations over the pixels whose texel some photo saw.
+
+Lighting (``lighting``): ``"collocated"`` (the flash photos above) or ``"environment"``, the paper's second
+object (its bust "under environmental illuminations"): the same cameras lit by the known environment ``env``
+alone, no flash (``"ballroom"``, the psdr-cuda ballroom map of ``../shared/data``, the built-in ``studio()`` with a
+warning where that file is missing, ``"studio"``, or a map's path; zenith on ``+z`` turned by ``env_rotate``
+degrees, radiance times ``env_scale``). The truth's normal map is made flat (the environment's precomputed
+transfer is for the surface's own normals). Its two novel views: the first novel camera (``grazing`` on the plane,
+``below`` on a mesh) under the same environment, a novel viewpoint; and ``turned``, the camera of ``opposite``
+(plane) or ``crossed`` (mesh) under the environment turned by 180 degrees about ``+z``, a novel lighting. Presets
+``mesh_env`` (the bunny, 20 environment-lit photos) and ``mesh_env_small`` (the bowl, what the test runs).
 """
 from __future__ import annotations
 
@@ -41,7 +51,8 @@ import time
 import numpy as np
 import torch
 
-from .common import PAPER_SIGMA, is_mesh, mesh_rig, prepare, sampler_of, scene_surface, synthetic, write_json
+from .common import (PAPER_SIGMA, SURFACE, environment_light, flat_normals, is_mesh, mesh_rig, prepare, sampler_of,
+                     scene_surface, synthetic, write_json)
 from ..inference import infer
 from ..models.data import ModelData
 from ..models.material import per_texel
@@ -56,27 +67,39 @@ from ..uncertainty import correlations, image_std
 
 DESCRIPTION = "Fig. 4: image-space std (Eq. 11) vs novel-view errors of four point estimates (Adam x2, SGD, ours)"
 
+_COLLOCATED = {"lighting": "collocated", "env": "ballroom", "env_scale": 1.0, "env_rotate": 0.0}
+_ENVIRONMENT = {**_COLLOCATED, "lighting": "environment"}
 PRESETS = {
     "small": {"material": "wood", "resolution": 32, "views": 20, "particles": 20, "steps": 1500,
               "opt_steps": 600, "adam_lr": 0.05, "sgd_lr": 2e-4, "refine_steps": 100, "init_high": 0.9,
               "init_low": 0.1, "noise_sigma": 0.0, "surface": "plane", "image_resolution": 0,
-              "sampler": "figure"},
+              "sampler": "figure", **_COLLOCATED},
     "full": {"material": "wood", "resolution": 128, "views": 20, "particles": 20, "steps": 4000,
              "opt_steps": 2000, "adam_lr": 0.05, "sgd_lr": 2e-4, "refine_steps": 200, "init_high": 0.9,
              "init_low": 0.1, "noise_sigma": 0.0, "surface": "plane", "image_resolution": 0,
-             "sampler": "figure"},
+             "sampler": "figure", **_COLLOCATED},
     # on a mesh (``image_resolution``: pixels per side of its perspective views, 0: twice the map resolution;
     # the plane's rectified views are always at the map resolution). ``mesh_small``: the built-in bowl, what the
     # test runs; ``mesh``: the Stanford bunny of ../shared/data
     "mesh_small": {"material": "wood", "resolution": 16, "views": 10, "particles": 20, "steps": 400,
                    "opt_steps": 300, "adam_lr": 0.05, "sgd_lr": 2e-4, "refine_steps": 50, "init_high": 0.9,
                    "init_low": 0.1, "noise_sigma": 0.0, "surface": "bowl", "image_resolution": 32,
-                   "sampler": "spos"},
+                   "sampler": "spos", **_COLLOCATED},
     "mesh": {"material": "wood", "resolution": 32, "views": 20, "particles": 20, "steps": 1000,
              "opt_steps": 600, "adam_lr": 0.05, "sgd_lr": 2e-4, "refine_steps": 100, "init_high": 0.9,
              "init_low": 0.1, "noise_sigma": 0.0, "surface": "bunny", "image_resolution": 64,
-             "sampler": "spos"},
+             "sampler": "spos", **_COLLOCATED},
+    # the same under the environment alone (the paper's second Fig. 4 object): the bowl (the test) and the bunny
+    "mesh_env_small": {"material": "wood", "resolution": 16, "views": 10, "particles": 20, "steps": 400,
+                       "opt_steps": 300, "adam_lr": 0.05, "sgd_lr": 2e-4, "refine_steps": 50, "init_high": 0.9,
+                       "init_low": 0.1, "noise_sigma": 0.0, "surface": "bowl", "image_resolution": 32,
+                       "sampler": "spos", **_ENVIRONMENT},
+    "mesh_env": {"material": "wood", "resolution": 32, "views": 20, "particles": 20, "steps": 1000,
+                 "opt_steps": 600, "adam_lr": 0.05, "sgd_lr": 2e-4, "refine_steps": 100, "init_high": 0.9,
+                 "init_low": 0.1, "noise_sigma": 0.0, "surface": "bunny", "image_resolution": 64,
+                 "sampler": "spos", **_ENVIRONMENT},
 }
+LIGHTINGS = ("collocated", "environment")
 #: the observed cameras on a mesh stay within this zenith angle (degrees from +z about ``mesh.center``)
 MESH_ZENITH = 80.0
 
@@ -188,17 +211,66 @@ def mesh_novel_views(mesh, resolution: int) -> list[View]:
     return [below, crossed]
 
 
-def mesh_problem(cfg: dict, mesh, seed: int):
-    """``(truth maps, Observations)`` of Fig. 4 on ``mesh``: ``views`` collocated flash photos around it."""
+def environment_novel_views(views: list[View], env) -> list[View]:
+    """The two novel views under the environment ``env`` (from the flash novel views' cameras): the first camera
+    under ``env`` itself (a novel viewpoint in the same room), named as it is, and the second camera under ``env``
+    turned by 180 degrees about ``+z`` (a novel lighting), named ``turned``."""
+    from ..render.environment import EnvironmentLight
+
+    c, s = -1.0, 0.0      # 180 degrees about +z, applied after the map's own to_world
+    turn = ((c, -s, 0.0, 0.0), (s, c, 0.0, 0.0), (0.0, 0.0, 1.0, 0.0), (0.0, 0.0, 0.0, 1.0))
+    tw = tuple(tuple(sum(turn[i][k] * env.to_world[k][j] for k in range(4)) for j in range(4)) for i in range(4))
+    turned = EnvironmentLight(env.radiance, env.scale, tw, name=env.name)
+    return [View(views[0].camera, (env,), name=views[0].name), View(views[1].camera, (turned,), name="turned")]
+
+
+def _lighting(cfg: dict):
+    """``(EnvironmentLight or None, description)`` of ``cfg["lighting"]``."""
+    from ..errors import InputError
+
+    kind = str(cfg["lighting"])
+    if kind not in LIGHTINGS:
+        raise InputError(f"unknown lighting {kind!r}", fix=f"lighting: {' or '.join(LIGHTINGS)}")
+    if kind == "collocated":
+        return None, "collocated flash"
+    env, text = environment_light(cfg["env"], cfg["env_scale"], cfg["env_rotate"])
+    return env, f"environment alone: {text}"
+
+
+def _lit(views: list[View], env) -> list[View]:
+    """``views`` lit by ``env`` alone (their flashes off); ``views`` as they are for ``env=None``."""
+    return list(views) if env is None else [View(v.camera, (env,), name=v.name) for v in views]
+
+
+def mesh_problem(cfg: dict, mesh, seed: int, env=None):
+    """``(truth maps, Observations)`` of Fig. 4 on ``mesh``: ``views`` collocated flash photos around it, or
+    the same cameras lit by the environment ``env`` alone (the truth's normal map then flat)."""
     from ..guidance.acquisition import SyntheticCapture
     from ..materials import make_material
 
     R = int(cfg["resolution"])
     truth = make_material(cfg["material"], R, seed=seed).to(torch.float32)
+    if env is not None:
+        truth = flat_normals(truth)
     dist, kw = mesh_rig(mesh, int(cfg["image_resolution"]) or 2 * R)
-    vs = collocated_views(int(cfg["views"]), dist, method="sobol", max_zenith=MESH_ZENITH, seed=seed, **kw)
+    vs = _lit(collocated_views(int(cfg["views"]), dist, method="sobol", max_zenith=MESH_ZENITH, seed=seed, **kw), env)
     obs = SyntheticCapture(truth, mesh, noise_sigma=float(cfg["noise_sigma"]), seed=seed)(vs)
     return truth, obs
+
+
+def plane_problem(cfg: dict, seed: int, env=None):
+    """``(truth maps, Observations)`` of Fig. 4 on the plane: ``views`` collocated rectified flash photos, or the
+    same cameras lit by the environment ``env`` alone (the truth's normal map then flat)."""
+    from ..guidance.acquisition import SyntheticCapture
+
+    R = int(cfg["resolution"])
+    truth, obs = synthetic(cfg["material"], R, views=int(cfg["views"]), seed=seed,
+                           noise_sigma=float(cfg["noise_sigma"]))
+    if env is None:
+        return truth, obs
+    truth = flat_normals(truth)
+    return truth, SyntheticCapture(truth, SURFACE, noise_sigma=float(cfg["noise_sigma"]), seed=seed)(
+        _lit(obs.views, env))
 
 
 def _maps_of(model, values: list[dict]):
@@ -234,6 +306,18 @@ def _texture_figure(path, truth, est, post, seen, name: str):
                       title=f"Fig. 4 on the {name}: texture space (the maps the posterior is over)")
 
 
+def _describe(view: View) -> str:
+    """A view's lights in words: its point lights and its environment (name, scale, the azimuth of its ``u = 0``)."""
+    parts = ["flash" if tuple(l.position) == tuple(view.camera.position) else
+             f"point light at ({', '.join(f'{x:.2f}' for x in l.position)})" for l in view.point_lights]
+    env = view.environment
+    if env is not None:
+        r = env.to_world
+        az = math.degrees(math.atan2(-r[1][2], -r[0][2]))          # where the map's u = 0 (local -z) points
+        parts.append(f"environment {env.name or 'map'} (scale {env.scale:g}, u = 0 at azimuth {az % 360:.0f} deg)")
+    return " + ".join(parts)
+
+
 # ------------------------------------------------------------------ the experiment
 def run(out, preset: str = "small", seed: int = 0, progress: bool = False, **overrides) -> dict:
     """Run Fig. 4 (see the module docstring); writes the PNGs and ``fig4.json`` into ``out`` and returns the numbers."""
@@ -242,11 +326,8 @@ def run(out, preset: str = "small", seed: int = 0, progress: bool = False, **ove
     R = int(cfg["resolution"])
     surface = scene_surface(cfg["surface"])
     mesh = is_mesh(surface)
-    if mesh:
-        truth, obs = mesh_problem(cfg, surface, seed)
-    else:
-        truth, obs = synthetic(cfg["material"], R, views=int(cfg["views"]), seed=seed,
-                               noise_sigma=float(cfg["noise_sigma"]))
+    env, lighting = _lighting(cfg)
+    truth, obs = mesh_problem(cfg, surface, seed, env) if mesh else plane_problem(cfg, seed, env)
     model = per_texel(R, specular=truth.specular, normals=truth.normal, sigma=PAPER_SIGMA)
 
     # SPOS, started from prior draws kept off the bounds (where the logit saturates)
@@ -264,6 +345,8 @@ def run(out, preset: str = "small", seed: int = 0, progress: bool = False, **ove
     t_point = time.perf_counter() - t1
 
     views = mesh_novel_views(surface, obs.views[0].resolution[0]) if mesh else novel_views(R)
+    if env is not None:
+        views = environment_novel_views(views, env)
     names = [v.name for v in views]
     with torch.no_grad():
         gb = GBuffer.build(views, surface)
@@ -278,7 +361,8 @@ def run(out, preset: str = "small", seed: int = 0, progress: bool = False, **ove
     per_view = {}
     for v, name in enumerate(names):
         m = mask[v]
-        row = {"std_mean": float(std[v][m].mean()), "truth_mean_radiance": float(truth_r[v][m].mean())}
+        row = {"std_mean": float(std[v][m].mean()), "truth_mean_radiance": float(truth_r[v][m].mean()),
+               "lighting": _describe(views[v])}
         for e in ESTIMATES:
             c = correlations(torch.from_numpy(std[v][m]), torch.from_numpy(errors[e][v][m]))
             row[e] = {"pearson": c["pearson"], "spearman": c["spearman"], "mae": float(errors[e][v][m].mean())}
@@ -314,7 +398,8 @@ def run(out, preset: str = "small", seed: int = 0, progress: bool = False, **ove
         errors = {e: np.where(mask, errors[e], np.nan) for e in ESTIMATES}
     files = [fig4_overview(out / "fig4.png", names, truth_r,
                            {LABELS[e]: (e[:2], est_r[e], errors[e]) for e in ESTIMATES}, std, vmaxes)]
-    where = f" on the {surface.name} (blank: off the object)" if mesh else ""
+    where = (f" on the {surface.name} (blank: off the object)" if mesh else "") + \
+        (", environment-lit" if env is not None else "")
     for v, name in enumerate(names):
         panels = [map_panel(std[v], "std (Eq. 11)", vmax=vmaxes[v])] + [
             map_panel(errors[e][v], f"|error| {LABELS[e]}", vmax=vmaxes[v]) for e in ESTIMATES]
@@ -328,7 +413,8 @@ def run(out, preset: str = "small", seed: int = 0, progress: bool = False, **ove
     summary = {"pearson": {e: round(avg[e]["pearson"], 3) for e in ESTIMATES},
                "spearman": {e: round(avg[e]["spearman"], 3) for e in ESTIMATES},
                "all_positive": bool(all(avg[e]["pearson"] > 0 and avg[e]["spearman"] > 0 for e in ESTIMATES)),
-               "seconds": round(time.perf_counter() - t0, 1)}
+               "seconds": round(time.perf_counter() - t0, 1), "lighting": lighting,
+               "std_mean": {n: float(per_view[n]["std_mean"]) for n in names}}
     extra = {}
     if mesh:
         extra = {"surface": {"name": surface.name, "faces": surface.num_faces, "center": list(surface.center),
@@ -341,6 +427,7 @@ def run(out, preset: str = "small", seed: int = 0, progress: bool = False, **ove
         summary["mae"] = {e: float(avg[e]["mae"]) for e in ESTIMATES}
         summary["texels_seen_fraction"] = round(extra["texels_seen_fraction"], 3)
     res = {"experiment": "fig4", "preset": preset, "seed": seed, "config": cfg, "novel_views": names, **extra,
+           "lighting": {"observed": lighting, "novel": {n: per_view[n]["lighting"] for n in names}},
            "per_view": per_view, "average": avg, "energies": energies, "parameter_error": param_err,
            "posterior_std": {"albedo": float(post.std("albedo").mean()),
                              "roughness": float(post.std("roughness").mean())},

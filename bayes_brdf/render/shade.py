@@ -16,6 +16,8 @@ Example:
 """
 from __future__ import annotations
 
+from dataclasses import replace
+
 import torch
 import torch.nn.functional as F
 from torch import Tensor
@@ -295,6 +297,25 @@ def compacted(g: GBuffer) -> tuple[GBuffer, Tensor]:
     return hit
 
 
+def compacted_taps(g: GBuffer) -> tuple[GBuffer, Tensor]:
+    """:func:`compacted` of rectified (``aligned``) views with each pixel read through bilinear taps at its ``uv``
+    (at a texel's centre when the map has the views' resolution: one tap of weight 1) rather than by texel index,
+    so that the native texel kernel applies; kept on ``g``.
+
+    Example:
+        >>> from bayes_brdf.render import collocated_views
+        >>> g = GBuffer.build(collocated_views(2, 3.0, camera="rectified", resolution=4), PlanarSample(2.0))
+        >>> c, index = compacted_taps(g)
+        >>> c.gathered, c.texel is None, c.resolution, index.shape
+        (True, True, (1, 32), torch.Size([32]))
+    """
+    hit = g.__dict__.get("_compacted_taps")
+    if hit is None:
+        c, index = compacted(g)
+        hit = g.__dict__["_compacted_taps"] = (replace(c, texel=None, texel_grid=None), index)
+    return hit
+
+
 def _compact_data(g: GBuffer, index: Tensor, target: Tensor, weight, kind: str):
     """Target and weight at the compacted pixels ``[1, 1, K, ...]`` and the loss of the pixels off the surface
     (they render 0, so it does not depend on the maps); kept on ``g`` while the same tensors come again
@@ -344,10 +365,13 @@ def shade_loss(maps: SVBRDF, g: GBuffer, target: Tensor, weight: Tensor | float 
     V, (h, w) = g.num_views, g.resolution
     if tuple(target.shape) != (V, h, w, 3):
         raise InputError(f"target images have shape {tuple(target.shape)}, expected {(V, h, w, 3)}")
-    if not (g.aligned or g.gathered) and chunk_views is None:
+    env_aligned = g.aligned and g.env is not None and backend != "eager"
+    if (not (g.aligned or g.gathered) or env_aligned) and chunk_views is None:
         # views whose pixels are not the texels (a mesh, perspective views of the plane): only the pixels that
-        # see the surface, as one 1 x K view, so masked pixels cost nothing and the fused kernel applies
-        c, index = compacted(g)
+        # see the surface, as one 1 x K view, so masked pixels cost nothing and the fused kernel applies.
+        # Rectified views under an environment go the same way, their pixels read through taps, because only the
+        # texel kernel shades an environment natively (the pixel kernel would fall back to eager torch)
+        c, index = compacted_taps(g) if env_aligned else compacted(g)
         yc, wc, const = _compact_data(g, index, target, weight, kind)
         loss = shade_loss(maps, c, yc, wc, kind=kind, ks_factor=ks_factor, eps=eps, backend=backend)
         return loss + const if const is not None else loss

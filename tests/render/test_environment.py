@@ -279,3 +279,42 @@ def test_native_texel_kernel_shades_the_environment_as_the_reference(dtype, tol)
     assert torch.allclose(la, lb, rtol=tol)
     for a, b in zip(ga, gb):
         assert float((a - b).abs().max() / a.abs().max()) < 10 * tol
+
+
+@pytest.mark.needs_native(kernel="texels")
+@pytest.mark.parametrize("dtype, tol", [(torch.float64, 1e-12), (torch.float32, 1e-4)])
+def test_rectified_views_under_an_environment_take_the_texel_kernel(dtype, tol, monkeypatch):
+    """Rectified views of the plane (pixels = texels) under an environment alone and with a flash: the loss goes
+    through the native texel kernel (one tap of weight 1 per pixel) and equals the eager reference, with its
+    gradients, including maps of another resolution than the views' (read bilinearly)."""
+    from bayes_brdf.render import native
+    from bayes_brdf.render.shade import compacted_taps
+    calls = []
+    real = native.NativeLoss.apply
+    monkeypatch.setattr(native.NativeLoss, "apply", lambda *a: calls.append(a[-1] is not None) or real(*a))
+    env = EnvironmentLight(_random_map(16, 32), to_world=z_up(25.0))
+    base = collocated_views(4, 3.0, camera="rectified", resolution=12, power=8.0)
+    views = [View(v.camera, (env,) if i % 2 else v.lights + (env,), name=v.name) for i, v in enumerate(base)]
+    g = GBuffer.build(views, PlanarSample(2.0), dtype=dtype)
+    assert g.aligned
+    gen = torch.Generator().manual_seed(1)
+    y = 0.3 * torch.rand(4, 12, 12, 3, generator=gen, dtype=dtype)
+    for R in (12, 9):
+        n = 3
+        flat = torch.tensor([0, 0, 1.0], dtype=dtype)[:, None, None].expand(3, R, R)
+        kd = torch.rand(n, 3, R, R, generator=gen, dtype=dtype)
+        r = 0.01 + 1.1 * torch.rand(n, 1, R, R, generator=gen, dtype=dtype)
+        ks = 0.04 + 0.3 * torch.rand(n, 3, R, R, generator=gen, dtype=dtype)
+        out = []
+        for backend in ("eager", "auto"):
+            ps = [t.clone().requires_grad_() for t in (kd, r, ks)]
+            loss = shade_loss(SVBRDF(*ps, flat), g, y, kind="l1", backend=backend)
+            loss.sum().backward()
+            out.append((loss.detach(), [p.grad for p in ps]))
+        (la, ga), (lb, gb) = out
+        assert torch.allclose(la, lb, rtol=tol), (R, la, lb)
+        for a, b in zip(ga, gb):
+            assert float((a - b).abs().max() / a.abs().max()) < 10 * tol, R
+    assert calls == [True, True]           # the auto losses, each with the environment's terms
+    c, index = compacted_taps(g)
+    assert c.texel is None and c.resolution == (1, 4 * 144) and sorted(index.tolist()) == list(range(4 * 144))
