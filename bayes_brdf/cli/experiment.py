@@ -18,7 +18,9 @@ def add_parser(sub):
     e.add_argument("name", help="experiment name (fig2, fig3, fig4, fig5, fig7) or 'list'")
     e.add_argument("--preset", default="small",
                    help="small or full; fig4 and fig7 also mesh_small and mesh (the same on a mesh: the bowl, the "
-                        "bunny of ../shared/data) (default: %(default)s)")
+                        "bunny of ../shared/data); under a known environment map (the ballroom of ../shared/data): "
+                        "fig3 env_small and env_full (the environment-lit rows), fig4 mesh_env_small and mesh_env; "
+                        "'experiment list' shows every preset (default: %(default)s)")
     e.add_argument("--set", type=key_value, action="append", default=[], metavar="KEY=VALUE",
                    help="override a preset setting, e.g. steps=2000 (repeatable)")
     e.add_argument("--seed", type=int, default=0, help="random seed (default: %(default)s)")

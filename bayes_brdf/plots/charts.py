@@ -28,27 +28,36 @@ def _axes(ax, xlabel: str, ylabel: str, title: str, st: dict) -> None:
 
 
 def line_plot(path, series: dict, *, xlabel: str, ylabel: str, title: str = "", logx: bool = False,
-              spread: str = "bars", style: str = "compact") -> Path:
+              spread: str = "bars", style: str = "compact", line_styles: dict | None = None,
+              legend: str = "inside") -> Path:
     """``series = {label: (xs, ys)}`` or ``{label: (xs, ys, sd)}`` as lines on one plot, written to ``path``.
 
     A third entry is drawn as error bars (``spread="bars"``) or as a shaded band of ``ys ± sd``
     (``spread="band"``). ``logx``: a log-2 x axis. ``style``: a key of :data:`CHART_STYLES`.
+    ``line_styles``: ``{label: matplotlib line keywords}`` (e.g. one colour per group, one dash per
+    quantity). ``legend="right"`` puts the legend beside the axes, where it hides no line.
     """
     st = CHART_STYLES[style]
-    fig, ax = pyplot().subplots(figsize=st["size"])
+    wide = legend == "right"
+    w, h = st["size"]
+    fig, ax = pyplot().subplots(figsize=(w * 1.7, h) if wide else st["size"])
     for lab, (xs, ys, *sd) in series.items():
+        kw = dict((line_styles or {}).get(lab, {}))
         if sd and spread == "band":
             xs, m, s = (np.asarray(v, dtype=float) for v in (xs, ys, sd[0]))
-            ax.plot(xs, m, marker="o", ms=st["ms"], label=lab)
-            ax.fill_between(xs, m - s, m + s, alpha=0.2)
+            (line,) = ax.plot(xs, m, marker="o", ms=st["ms"], label=lab, **kw)
+            ax.fill_between(xs, m - s, m + s, alpha=0.2, color=line.get_color())
         elif sd:
-            ax.errorbar(xs, ys, yerr=sd[0], marker="o", ms=st["ms"], capsize=2, label=lab)
+            ax.errorbar(xs, ys, yerr=sd[0], marker="o", ms=st["ms"], capsize=2, label=lab, **kw)
         else:
-            ax.plot(xs, ys, marker="o", ms=st["ms"], label=lab)
+            ax.plot(xs, ys, marker="o", ms=st["ms"], label=lab, **kw)
     if logx:
         ax.set_xscale("log", base=2)
     _axes(ax, xlabel, ylabel, title, st)
-    ax.legend(fontsize=st["legend"])
+    if wide:
+        ax.legend(fontsize=st["legend"], loc="center left", bbox_to_anchor=(1.02, 0.5), frameon=False)
+    else:
+        ax.legend(fontsize=st["legend"])
     fig.tight_layout()
     return save_figure(fig, path, dpi=st["dpi"])
 
