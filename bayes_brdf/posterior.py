@@ -124,8 +124,10 @@ class Posterior:
         roughness, specular and normal that the sites decide (fixed maps are left out). Where a map is
         itself a site (``per_texel``'s albedo, roughness, specular) its std is that site's (same numbers,
         the site's own shape); otherwise it is over the decoded maps (``per_texel``'s normals from their
-        slopes; all four maps of ``latent_decoder``, decoded from W+ and noise). ``std(name)``: a site's
-        std, or a map's. Without a model: ``{site: std}``.
+        slopes; all four maps of ``latent_decoder``, decoded from W+ and noise). A model whose user-facing
+        maps are not the renderer's offers ``parameter_maps(values)`` (``metallic_roughness``: base colour,
+        metallic, roughness): those maps then. ``std(name)``: a site's std, or a map's (the renderer's
+        ``albedo``, ``specular`` included). Without a model: ``{site: std}``.
         """
         if site is None:
             if offers_maps(self.model):
@@ -134,7 +136,8 @@ class Posterior:
         if site in self.particles:
             return self._std(self.particles[site])
         if site in MAPS and offers_maps(self.model):
-            out = self.map_std()
+            out = self._renderer_map_std() if callable(getattr(self.model, "parameter_maps", None)) \
+                else self.map_std()
             if site in out:
                 return out[site]
             raise InputError(f"the map '{site}' is fixed in this model (no uncertainty)",
@@ -152,12 +155,19 @@ class Posterior:
     def map_std(self) -> dict[str, Tensor]:
         """``{map: std over the particles}`` for the maps the sites decide (see :meth:`std`)."""
         out = {}
+        if callable(getattr(self.model, "parameter_maps", None)):
+            return {k: self._std(v) for k, v in self.model.parameter_maps(self.particles).items()}
         for name in MAPS:
             if name in self.particles:
                 out[name] = self._std(self.particles[name])
             elif self._varies(t := getattr(self.maps("all"), name)):
                 out[name] = self._std(t)
         return out
+
+    def _renderer_map_std(self) -> dict[str, Tensor]:
+        """``{map: std}`` of the renderer's maps (albedo, roughness, specular, normal) that vary."""
+        m = self.maps("all")
+        return {name: self._std(t) for name in MAPS if self._varies(t := getattr(m, name))}
 
     @property
     def surface(self):

@@ -172,10 +172,12 @@ def per_texel(resolution: int = 128, **kw) -> PerTexel:
 
 def _builtin():
     from .latent_decoder import LatentDecoder
-    return {"homogeneous": Homogeneous, "per_texel": PerTexel, "latent_decoder": LatentDecoder}
+    from .metallic import MetallicRoughness
+    return {"homogeneous": Homogeneous, "per_texel": PerTexel, "latent_decoder": LatentDecoder,
+            "metallic_roughness": MetallicRoughness}
 
 
-BUILTIN_NAMES = ("homogeneous", "per_texel", "latent_decoder")
+BUILTIN_NAMES = ("homogeneous", "per_texel", "latent_decoder", "metallic_roughness")
 
 
 def from_preset(table: dict) -> MaterialModel:
@@ -189,7 +191,8 @@ def from_preset(table: dict) -> MaterialModel:
     extra = set(t) - allowed
     if extra:
         raise InputError(f"unknown key(s) {sorted(extra)} in the {name} model preset", fix=f"allowed: {sorted(allowed)}")
-    if not issubclass(cls, MaterialModel):
+    from .metallic import MetallicRoughness
+    if not issubclass(cls, (MaterialModel, MetallicRoughness)):      # the latent decoder: its own options
         try:
             return cls(**t)
         except TypeError as e:

@@ -20,14 +20,14 @@ def model_table(model: str, overrides: dict, resolution: int) -> dict:
     """The model preset ``model`` (a name or a TOML path) with ``overrides`` applied: what a run samples
     and what its fingerprint records.
 
-    A ``per_texel`` model gets ``resolution`` texels per side unless ``overrides`` set it; a
-    ``latent_decoder`` records the digest of its weights (other weights, another run).
+    A per-texel model (``per_texel``, ``metallic_roughness``) gets ``resolution`` texels per side unless
+    ``overrides`` set it; a ``latent_decoder`` records the digest of its weights (other weights, another run).
     """
     from ..presets import load_preset
 
     table = dict(load_preset("models", model))
     table.update(dict(overrides))
-    if table.get("model") == "per_texel" and "resolution" not in dict(overrides):
+    if table.get("model") in ("per_texel", "metallic_roughness") and "resolution" not in dict(overrides):
         table["resolution"] = resolution
     if table.get("model") == "latent_decoder" and "weights_digest" not in table:
         from ..models.latent_decoder import weights_digest
