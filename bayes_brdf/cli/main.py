@@ -28,6 +28,7 @@ import logging
 import os
 import signal
 import sys
+import time
 from pathlib import Path
 
 from .. import __version__
@@ -144,6 +145,34 @@ def _with_environment(views, a) -> list:
     return out
 
 
+def _check_integrator(a) -> None:
+    """``--integrator`` with ``--spp`` / ``--max-depth``: one line for a combination that does not apply."""
+    if a.integrator == "ours":
+        for opt, val in (("--spp", a.spp), ("--max-depth", a.max_depth)):
+            if val is not None:
+                raise InputError(f"{opt} applies to Mitsuba's integrators", fix="add --integrator path (or direct)")
+        return
+    if a.camera == "rectified" and not a.capture:
+        raise InputError(f"--integrator {a.integrator} renders through Mitsuba's perspective camera",
+                         fix="use --camera perspective (the default)")
+    if a.integrator == "direct" and a.max_depth is not None:
+        raise InputError("--max-depth applies to --integrator path", fix="leave it out, or use --integrator path")
+    a.spp = a.spp or 64
+    a.max_depth = a.max_depth or 8
+
+
+def _mitsuba_view(maps, view, surface, a, k: int):
+    """One view ``[H, W, 3]`` rendered by Mitsuba (``--integrator direct|path``, a perspective sensor with a box
+    filter: pixel areas): a plane as the two-triangle mesh of the same square."""
+    from ..render.mesh import Mesh
+    from ..render.mitsuba_reference import render_reference
+    from ..render.surface import PlanarSample
+
+    mesh = Mesh.plane(surface.size) if isinstance(surface, PlanarSample) else surface
+    return render_reference(maps.to("cpu"), [view], mesh, camera="sensor", integrator=a.integrator,
+                            spp=a.spp, max_depth=a.max_depth, seed=a.seed + 104729 * k)[0].float()
+
+
 def cmd_render(a) -> int:
     import torch
     from tqdm import tqdm
@@ -160,6 +189,7 @@ def cmd_render(a) -> int:
     if a.mesh and a.camera == "rectified":
         raise InputError("--camera rectified cannot look at a --mesh (it only images the planar sample)",
                          fix="use --camera perspective")
+    _check_integrator(a)
     check_folder(a.out)
     transforms = False
     if a.capture:
@@ -196,12 +226,22 @@ def cmd_render(a) -> int:
     if len({tuple(v.resolution) for v in views}) > 1:
         raise InputError("the views have different resolutions", fix="render them in separate calls")
     images = []
+    t0 = time.perf_counter()
     with torch.no_grad():
-        for v in tqdm(views, desc="render", unit="view", disable=not sys.stderr.isatty() or len(views) < 4):
-            g = GBuffer.build([v], surface, device=a.device)
-            images.append(shade(maps, g)[0, 0].cpu())
+        for k, v in enumerate(tqdm(views, desc="render", unit="view",
+                                   disable=not sys.stderr.isatty() or len(views) < 4)):
+            if a.integrator == "ours":
+                g = GBuffer.build([v], surface, device=a.device)
+                images.append(shade(maps, g)[0, 0].cpu())
+            else:
+                images.append(_mitsuba_view(maps, v, surface, a, k))
+    per_view = (time.perf_counter() - t0) / max(1, len(views))
     imgs = torch.stack(images)
-    meta = {"source": "bayes-brdf render", "material": a.material, "seed": a.seed, "units": "scene units"}
+    meta = {"source": "bayes-brdf render", "material": a.material, "seed": a.seed, "units": "scene units",
+            "integrator": a.integrator, "seconds_per_view": round(per_view, 3)}
+    if a.integrator != "ours":
+        meta.update(renderer=f"Mitsuba {a.integrator} integrator", spp=a.spp,
+                    **({"max_depth": a.max_depth} if a.integrator == "path" else {}))
     if a.env:
         meta.update(environment=str(a.env), env_rotate=a.env_rotate or 0.0, env_scale=a.env_scale or 1.0)
     obs = Observations(views, imgs, surface, meta=meta)
@@ -220,7 +260,10 @@ def cmd_render(a) -> int:
     env = next((v.environment for v in views if v.environment is not None), None)
     if env is not None:
         what += f" under environment '{env.name or env.digest}'" + ("" if views[0].point_lights else " alone")
-    print(f"rendered {len(views)} views of {what} at {imgs.shape[1]}x{imgs.shape[2]} -> {out}/ "
+    how = "" if a.integrator == "ours" else \
+        (f" with Mitsuba's {a.integrator} integrator ({a.spp} spp"
+         + (f", max depth {a.max_depth}" if a.integrator == "path" else "") + f"; {per_view:.2f} s per view)")
+    print(f"rendered {len(views)} views of {what}{how} at {imgs.shape[1]}x{imgs.shape[2]} -> {out}/ "
           f"({written}, preview_*.png, maps/)"
           + ("; the material's normal map was made flat (an environment light is shaded with the geometry's own "
              "normals)" if flattened else ""))
@@ -285,6 +328,16 @@ def build_parser() -> argparse.ArgumentParser:
                    help="multiply the environment map's radiance by S (default: 1)")
     r.add_argument("--no-flash", action="store_true",
                    help="leave the views' point lights (the flash) out: with --env, lit by the environment alone")
+    r.add_argument("--integrator", choices=["ours", "direct", "path"], default="ours",
+                   help="ours: this library's renderer (direct light with shadows, pixel centres: the model the "
+                        "samplers fit); direct: Mitsuba's direct integrator; path: Mitsuba's path tracer "
+                        "(interreflections, Monte Carlo noise): photos from a renderer that is not our forward "
+                        "model. Mitsuba renders through its perspective sensor (pixel areas, box filter) with "
+                        "our BRDF as its BSDF (default: %(default)s)")
+    r.add_argument("--spp", type=_positive_int, default=None,
+                   help="Mitsuba's samples per pixel (default: 64)")
+    r.add_argument("--max-depth", type=_positive_int, default=None,
+                   help="--integrator path: the longest path (2: direct light only; default: 8)")
     r.add_argument("--sample-size", type=_positive_float, default=2.0, help="side of the square sample (default: %(default)s)")
     r.add_argument("--format", choices=["exr", "png"], default="exr", help="image format of the bundle (default: %(default)s)")
     r.add_argument("--device", default="cpu", help="torch device, e.g. cpu or cuda (default: %(default)s)")

@@ -99,6 +99,10 @@ BSDF_NAME = "bayes_brdf_microfacet"
 
 #: the camera kinds of :func:`render_reference`
 CAMERAS = ("rays", "sensor")
+#: the integrators of :func:`render_reference`: ``direct`` (direct light, one pass per light: the reference of our
+#: shading) and ``path`` (Mitsuba's path tracer: interreflections, Monte Carlo noise; captures from a renderer
+#: that is not our forward model)
+INTEGRATORS = ("direct", "path")
 
 _LOCK = threading.Lock()
 _REGISTERED: set[str] = set()
@@ -300,6 +304,7 @@ class ReferenceScene:
             self.env_integrator = mi.load_dict({"type": "direct", "emitter_samples": 1, "bsdf_samples": 1,
                                                 "hide_emitters": True})
             self.params = mi.traverse(self.scene)
+            self._paths: dict = {}
             self._sensor = None
             self._envs: OrderedDict = OrderedDict()
             self.env_builds = 0
@@ -340,10 +345,27 @@ class ReferenceScene:
             self._envs.popitem(last=False)
         return scene
 
+    def path_integrator(self, max_depth: int):
+        """Mitsuba's ``path`` integrator with ``max_depth`` (2: direct light only), emitters hidden from camera rays
+        (a ray that misses the mesh is black, as in our renders); one per depth, kept."""
+        import mitsuba as mi
+        if max_depth not in self._paths:
+            self._paths[max_depth] = mi.load_dict({"type": "path", "max_depth": int(max_depth),
+                                                   "hide_emitters": True})
+        return self._paths[max_depth]
+
+    def _pass(self, light, path):
+        """``(scene, integrator)`` of one light's pass (``path``: the path integrator, or ``None`` for direct)."""
+        if _is_environment(light):
+            return self.env_scene(light), path or self.env_integrator
+        self.set_light(light)
+        return self.scene, path or self.integrator
+
     # ---------------------------------------------------------------- renders
-    def render_rays(self, camera: PerspectiveCamera, lights, seed: int = 0, spp: int = 64) -> Tensor:
+    def render_rays(self, camera: PerspectiveCamera, lights, seed: int = 0, spp: int = 64, path=None) -> Tensor:
         """``[H, W, 3]``: the pixel-centre rays of ``camera`` through ``integrator.sample``, summed over ``lights``
-        (a point light: one exact sample per pixel; an environment: the mean of ``spp`` independent samples)."""
+        (direct light: a point light one exact sample per pixel, an environment the mean of ``spp`` independent
+        samples; under a ``path`` integrator every pass is the mean of ``spp`` samples)."""
         import drjit as dr
         import mitsuba as mi
         h, w = camera.resolution
@@ -355,22 +377,22 @@ class ReferenceScene:
         sampler = mi.load_dict({"type": "independent"})
         out = np.zeros((3, n), np.float64)
         for light in lights:
-            if _is_environment(light):
-                out += self._env_rays(light, o, d, int(spp), seed, sampler)
+            scene, integrator = self._pass(light, path)
+            if path is not None or _is_environment(light):
+                out += self._mean_rays(scene, integrator, o, d, int(spp), seed, sampler)
                 continue
-            self.set_light(light)
             sampler.seed(seed, n)
-            spec, _, _ = self.integrator.sample(self.scene, sampler, ray, None, True)
+            spec, _, _ = integrator.sample(scene, sampler, ray, None, True)
             dr.eval(spec)
             out += np.stack([np.asarray(spec[0]), np.asarray(spec[1]), np.asarray(spec[2])]).astype(np.float64)
         return torch.from_numpy(out.reshape(3, h, w).transpose(1, 2, 0).copy())
 
-    def _env_rays(self, light, o: Tensor, d: np.ndarray, spp: int, seed: int, sampler) -> np.ndarray:
-        """``[3, n]``: the mean over ``spp`` samples of the environment pass for rays from ``o`` along ``d [3, n]``;
-        the rays are repeated so that one launch holds up to :data:`MAX_LANES` lanes, each launch its own seed."""
+    def _mean_rays(self, scene, integrator, o: Tensor, d: np.ndarray, spp: int, seed: int, sampler) -> np.ndarray:
+        """``[3, n]``: the mean over ``spp`` samples of ``integrator`` on ``scene`` for rays from ``o`` along
+        ``d [3, n]``; the rays are repeated so that one launch holds up to :data:`MAX_LANES` lanes, each launch
+        its own seed."""
         import drjit as dr
         import mitsuba as mi
-        scene = self.env_scene(light)
         n = d.shape[1]
         reps = max(1, min(spp, MAX_LANES // n))
         acc = np.zeros((3, n), np.float64)
@@ -382,16 +404,16 @@ class ReferenceScene:
                 mi.Point3f(*(mi.Float(np.full(n * k, float(x), np.float32)) for x in o.tolist())),
                 mi.Vector3f(mi.Float(dk[0]), mi.Float(dk[1]), mi.Float(dk[2])))
             sampler.seed((seed + 7919 * launch) % 2**32, n * k)
-            spec, _, _ = self.env_integrator.sample(scene, sampler, ray, None, True)
+            spec, _, _ = integrator.sample(scene, sampler, ray, None, True)
             dr.eval(spec)
             a = np.stack([np.asarray(spec[0]), np.asarray(spec[1]), np.asarray(spec[2])]).astype(np.float64)
             acc += a.reshape(3, k, n).sum(1)
             done, launch = done + k, launch + 1
         return acc / spp
 
-    def render_sensor(self, camera: PerspectiveCamera, lights, spp: int = 64, seed: int = 0) -> Tensor:
+    def render_sensor(self, camera: PerspectiveCamera, lights, spp: int = 64, seed: int = 0, path=None) -> Tensor:
         """``[H, W, 3]``: a Mitsuba ``perspective`` sensor like ``camera`` (box filter, ``spp`` samples per
-        pixel), summed over ``lights``."""
+        pixel), summed over ``lights`` (``path``: the path integrator for every pass)."""
         import mitsuba as mi
         h, w = camera.resolution
         _, u, f = camera.frame()
@@ -412,19 +434,18 @@ class ReferenceScene:
         sp.update()
         out = torch.zeros(h, w, 3, dtype=torch.float64)
         for i, light in enumerate(lights):
-            if _is_environment(light):
-                scene = self.env_scene(light)
+            scene, integrator = self._pass(light, path)
+            if path is not None or _is_environment(light):
                 per = max(1, min(spp, MAX_LANES // (h * w)))          # samples per launch
                 done = launch = 0
                 while done < spp:
                     k = min(per, spp - done)
-                    img = mi.render(scene, sensor=sensor, integrator=self.env_integrator, spp=k,
+                    img = mi.render(scene, sensor=sensor, integrator=integrator, spp=k,
                                     seed=(seed + 7919 * i + 1000003 * launch) % 2**32)
                     out += torch.from_numpy(np.array(img, dtype=np.float64)[..., :3]) * (k / spp)
                     done, launch = done + k, launch + 1
                 continue
-            self.set_light(light)
-            img = mi.render(self.scene, sensor=sensor, integrator=self.integrator, spp=spp, seed=seed + 7919 * i)
+            img = mi.render(scene, sensor=sensor, integrator=integrator, spp=spp, seed=seed + 7919 * i)
             out += torch.from_numpy(np.array(img, dtype=np.float64)[..., :3])
         return out
 
@@ -454,7 +475,8 @@ def _check(maps: SVBRDF, views) -> SVBRDF:
 
 
 def render_reference(maps: SVBRDF, views, mesh, *, camera: str = "rays", spp: int = 64, eps: float = 1e-8,
-                     ks_factor: bool = True, seed: int = 0, variant: str | None = None) -> Tensor:
+                     ks_factor: bool = True, seed: int = 0, variant: str | None = None, integrator: str = "direct",
+                     max_depth: int = 8) -> Tensor:
     """Mitsuba's render ``[V, H, W, 3]`` (float64, linear radiance) of ``maps`` on ``mesh`` under ``views``.
 
     The counterpart of ``shade.render(maps, views, mesh)[0]`` (see the module docstring): ``camera``
@@ -466,6 +488,12 @@ def render_reference(maps: SVBRDF, views, mesh, *, camera: str = "rays", spp: in
     of a view is one pass with that light the only emitter in the scene (a point light: a ``point`` emitter,
     no BSDF samples; an environment: ``envmap`` with emitter and BSDF samples under MIS), and the passes
     are summed.
+
+    ``integrator="path"``: every pass through Mitsuba's ``path`` integrator (emitter and BSDF samples at each
+    bounce under MIS, Russian roulette from depth 5, at most ``max_depth``: 2 is direct light only, 8 the
+    default), ``spp`` samples per pixel for every light: light that bounced between parts of the mesh
+    (interreflections), with Monte Carlo noise ~ 1 / sqrt(spp). Light transport is linear in the emitters,
+    so the sum of one pass per light is the render of all of them at once.
 
     Example:
         >>> from bayes_brdf.render import SVBRDF, collocated_views     # doctest: +SKIP
@@ -481,6 +509,10 @@ def render_reference(maps: SVBRDF, views, mesh, *, camera: str = "rays", spp: in
                          fix="use llvm_ad_rgb or cuda_ad_rgb")
     if int(spp) < 1:
         raise InputError(f"spp must be >= 1, got {spp}")
+    if integrator not in INTEGRATORS:
+        raise InputError(f"unknown integrator {integrator!r}", fix=f"use one of {', '.join(INTEGRATORS)}")
+    if integrator == "path" and (isinstance(max_depth, bool) or int(max_depth) != max_depth or max_depth < 2):
+        raise InputError(f"max_depth must be an integer >= 2 (2: direct light only), got {max_depth!r}")
     views = list(views)
     if not views:
         raise InputError("no views given", fix="pass at least one View")
@@ -491,8 +523,10 @@ def render_reference(maps: SVBRDF, views, mesh, *, camera: str = "rays", spp: in
     with _LOCK, mitsuba_variant(variant) as mi:
         rs = SCENES.get(mesh, mi.variant())
         rs.set_maps(maps, eps=eps, ks_factor=ks_factor)
-        imgs = [rs.render_rays(v.camera, v.lights, seed + 104729 * k, int(spp)) if camera == "rays" else
-                rs.render_sensor(v.camera, v.lights, int(spp), seed + 104729 * k) for k, v in enumerate(views)]
+        path = rs.path_integrator(int(max_depth)) if integrator == "path" else None
+        imgs = [rs.render_rays(v.camera, v.lights, seed + 104729 * k, int(spp), path) if camera == "rays" else
+                rs.render_sensor(v.camera, v.lights, int(spp), seed + 104729 * k, path)
+                for k, v in enumerate(views)]
     return torch.stack(imgs)
 
 
