@@ -148,6 +148,30 @@ def predictive_cdf(post, views, images: Tensor, surface: PlanarSample | None = N
     return cat(Fs), cat(stds), cat(means)
 
 
+def predictive_std(post, std: Tensor, mean: Tensor, *, sigma: float | None = None) -> Tensor:
+    """The posterior predictive's std of a new photo's pixels: ``sqrt(std^2 + noise variance)``, the renders'
+    spread (Eq. 11, ``std``) plus the model's noise at the particles' mean render ``mean`` (both as
+    :func:`predictive_cdf` returns them): Laplace ``2 (sigma g(R))^2``, Gaussian ``(sigma g(R))^2``, with
+    ``g`` the signal-dependent relative scale (1 under one noise scale). The noise is taken at the mean
+    render rather than per particle (the law of total variance with ``g`` linearised): exact under one
+    noise scale. What a held-out photo's ``|error|`` should follow, as Eq. 11 alone is what the particles
+    disagree on.
+
+    Example:
+        >>> from types import SimpleNamespace
+        >>> p = SimpleNamespace(noise_sigma=0.01, noise_level=None, model=None)
+        >>> round(float(predictive_std(p, torch.tensor([0.03]), torch.tensor([0.5]))), 5)    # sqrt(0.03^2 + 2e-4)
+        0.03317
+    """
+    model = getattr(post, "model", None)
+    sigma = float(sigma if sigma is not None else getattr(post, "noise_sigma", None) or 0)
+    kind = getattr(model, "likelihood", "laplace")
+    level = getattr(post, "noise_level", None)
+    scale = sigma if level is None else sigma * level.relative(mean.mean(-1, keepdim=True)).to(mean)
+    var = (2.0 if kind == "laplace" else 1.0) * scale * scale
+    return (std * std + var).sqrt()
+
+
 def coverage(pit: Tensor, levels=(0.5, 0.9)) -> dict[str, float]:
     """Fraction of PIT values inside each central interval: ``{"50": ..., "90": ...}``."""
     p = pit.reshape(-1)

@@ -72,7 +72,7 @@ def heldout_report(post, obs, out: Path, fitted_sigma: float | None = None) -> d
 
     from ..io import write_png
     from ..plots import write_map
-    from ..uncertainty import correlations, coverage, predictive_cdf
+    from ..uncertainty import correlations, coverage, predictive_cdf, predictive_std
 
     F, std, mean, pred, y, err, inside = predict(post, obs.views, obs.images, obs.surface)
     valid = inside.clone()
@@ -102,10 +102,11 @@ def heldout_report(post, obs, out: Path, fitted_sigma: float | None = None) -> d
                "coverage": coverage(F[j][vm])}
         per_view.append(rec)
     vv = valid[..., None].expand_as(err)
-    extra = {}
+    pstd = predictive_std(post, std, mean)
+    extra = {"predictive": {"mean_std": float(pstd[vv].mean()), **correlations(pstd[vv], err[vv])}}
     if fitted_sigma:
         F2, _, _ = predictive_cdf(post, obs.views, obs.images, obs.surface, sigma=fitted_sigma)
-        extra = {"fitted_sigma": fitted_sigma, "coverage_with_fitted_sigma": coverage(F2[vv])}
+        extra.update(fitted_sigma=fitted_sigma, coverage_with_fitted_sigma=coverage(F2[vv]))
     return {**extra, "pixels": int(valid.sum()), "saturated_left_out": n_sat, "map_range": [0.0, vmax],
             "mean_abs_error": float(err[vv].mean()), "mean_std": float(std[vv].mean()),
             **correlations(std[vv], err[vv]),
