@@ -283,19 +283,25 @@ class ReferenceScene:
         >>> rs = ReferenceScene(Mesh.sphere())                       # doctest: +SKIP
     """
 
-    def __init__(self, mesh, variant: str | None = None):
+    def __init__(self, mesh, variant: str | None = None, bsdf: str = "ours"):
         self.mesh = mesh
+        self.kind = bsdf
         with mitsuba_variant(variant) as mi:
             self.variant = mi.variant()
-            _register(mi)
             one = lambda c: {"type": "bitmap", "data": mi.TensorXf(np.full((2, 2, c), 0.5, np.float32)),  # noqa: E731
                              "raw": True, "filter_type": "bilinear", "wrap_mode": "clamp"}
-            bsdf = mi.load_dict({"type": BSDF_NAME, "albedo": one(3), "roughness": one(1), "specular": one(3),
-                                 "normal": one(3)})
+            if bsdf == "principled":          # Mitsuba's own, with bitmaps of base colour, metallic, roughness
+                bsdf = mi.load_dict({"type": "principled", "base_color": one(3), "metallic": one(1),
+                                     "roughness": one(1), "specular": 0.5})
+                self.textures = None
+            else:
+                _register(mi)
+                bsdf = mi.load_dict({"type": BSDF_NAME, "albedo": one(3), "roughness": one(1), "specular": one(3),
+                                     "normal": one(3)})
+                self.textures = {name: getattr(bsdf, "normalmap" if name == "normal" else name) for name in _MAPS}
             m = mitsuba_mesh(mesh, mi)
             m.set_bsdf(bsdf)
             self.bsdf = bsdf
-            self.textures = {name: getattr(bsdf, "normalmap" if name == "normal" else name) for name in _MAPS}
             self.scene = mi.load_dict({
                 "type": "scene", "mesh": m,
                 "light": {"type": "point", "position": [0.0, 0.0, 0.0], "intensity": {"type": "rgb", "value": 1.0}},
@@ -318,6 +324,15 @@ class ReferenceScene:
             tp["data"] = mi.TensorXf(_bitmap_data(t))
             tp.update()
         self.bsdf.eps, self.bsdf.ks_factor = float(eps), bool(ks_factor)
+
+    def set_principled(self, textures: dict) -> None:
+        """Load ``{"base_color": [3, R, R], "metallic": [1, R, R], "roughness": [1, R, R]}`` (our map convention)
+        into the ``principled`` BSDF's bitmaps (a scene built with ``bsdf="principled"``; inside a variant block)."""
+        import mitsuba as mi
+        tp = mi.traverse(self.bsdf)
+        for name in PRINCIPLED_MAPS:
+            tp[f"{name}.data"] = mi.TensorXf(_bitmap_data(textures[name]))
+        tp.update()
 
     def set_light(self, light) -> None:
         import mitsuba as mi
@@ -452,6 +467,11 @@ class ReferenceScene:
 
 #: the reference scenes built so far, by mesh and variant
 SCENES = MeshSceneCache(ReferenceScene, max_entries=4)
+#: the scenes with Mitsuba's ``principled`` BSDF (:func:`render_principled`), by mesh and variant
+PRINCIPLED_SCENES = MeshSceneCache(lambda mesh, variant: ReferenceScene(mesh, variant, bsdf="principled"),
+                                   max_entries=2)
+#: the maps of :func:`render_principled`
+PRINCIPLED_MAPS = ("base_color", "metallic", "roughness")
 
 
 def _is_environment(light) -> bool:
@@ -523,6 +543,42 @@ def render_reference(maps: SVBRDF, views, mesh, *, camera: str = "rays", spp: in
     with _LOCK, mitsuba_variant(variant) as mi:
         rs = SCENES.get(mesh, mi.variant())
         rs.set_maps(maps, eps=eps, ks_factor=ks_factor)
+        path = rs.path_integrator(int(max_depth)) if integrator == "path" else None
+        imgs = [rs.render_rays(v.camera, v.lights, seed + 104729 * k, int(spp), path) if camera == "rays" else
+                rs.render_sensor(v.camera, v.lights, int(spp), seed + 104729 * k, path)
+                for k, v in enumerate(views)]
+    return torch.stack(imgs)
+
+
+def render_principled(textures: dict, views, mesh, *, camera: str = "sensor", spp: int = 64, seed: int = 0,
+                      variant: str | None = None, integrator: str = "path", max_depth: int = 8) -> Tensor:
+    """Mitsuba's render ``[V, H, W, 3]`` of a metallic-roughness material through its own ``principled`` BSDF.
+
+    ``textures``: ``{"base_color": [3, R, R], "metallic": [1, R, R], "roughness": [1, R, R]}`` in our map
+    convention (texel row 0 at ``v = 1``; each map its own resolution), loaded as Mitsuba bitmaps (bilinear,
+    clamped, raw); ``specular = 0.5`` (a dielectric ``F0`` of 0.04), no sheen, clearcoat, tint or
+    transmission. Everything else as :func:`render_reference` (``camera``, ``integrator``, ``spp``,
+    ``max_depth``, one pass per light, view ``k`` seeded ``seed + 104729 k``). Where ``principled`` and our
+    :mod:`~bayes_brdf.models.metallic` model differ: docs/models.md.
+    """
+    if camera not in CAMERAS:
+        raise InputError(f"unknown reference camera {camera!r}", fix=f"use one of {', '.join(CAMERAS)}")
+    if integrator not in INTEGRATORS:
+        raise InputError(f"unknown integrator {integrator!r}", fix=f"use one of {', '.join(INTEGRATORS)}")
+    missing = [k for k in PRINCIPLED_MAPS if k not in textures]
+    if missing:
+        raise InputError(f"principled textures lack {missing}", fix=f"give {', '.join(PRINCIPLED_MAPS)}")
+    for name, c in zip(PRINCIPLED_MAPS, (3, 1, 1)):
+        t = torch.as_tensor(textures[name])
+        if t.dim() != 3 or t.shape[0] != c:
+            raise InputError(f"principled texture {name} has shape {tuple(t.shape)}, expected [{c}, H, W]")
+    views = list(views)
+    if not views:
+        raise InputError("no views given", fix="pass at least one View")
+    _check(SVBRDF.constant(), views)
+    with _LOCK, mitsuba_variant(variant) as mi:
+        rs = PRINCIPLED_SCENES.get(mesh, mi.variant())
+        rs.set_principled({k: torch.as_tensor(v) for k, v in textures.items()})
         path = rs.path_integrator(int(max_depth)) if integrator == "path" else None
         imgs = [rs.render_rays(v.camera, v.lights, seed + 104729 * k, int(spp), path) if camera == "rays" else
                 rs.render_sensor(v.camera, v.lights, int(spp), seed + 104729 * k, path)
