@@ -10,12 +10,13 @@ from .common import key_value
 
 
 def add_parser(sub):
-    e = sub.add_parser("experiment", help="reproduce one of the paper's experiments (fig2, fig3, fig4, fig5, fig7)",
+    e = sub.add_parser("experiment", help="reproduce one of the paper's experiments (fig2 ... fig7), or compare with a "
+                                          "peer (wiersma)",
                        description="Run one experiment of the paper on synthetic data and write its PNG figures and "
                                    "a JSON of the numbers to --out. 'small' presets take about a minute on 2 CPU "
                                    "cores (what CI runs); 'full' is paper-sized. 'bayes-brdf experiment list' shows "
                                    "them all.")
-    e.add_argument("name", help="experiment name (fig2, fig3, fig4, fig5, fig7) or 'list'")
+    e.add_argument("name", help="experiment name (fig2, fig3, fig4, fig5, fig6, fig7, wiersma) or 'list'")
     e.add_argument("--preset", default="small",
                    help="small or full; fig4 and fig7 also mesh_small and mesh (the same on a mesh: the bowl, the "
                         "bunny of ../shared/data); under a known environment map (the ballroom of ../shared/data): "

@@ -25,6 +25,7 @@ EXPERIMENTS = {
     "fig5": "bayes_brdf.experiments.fig5_prior",
     "fig6": "bayes_brdf.experiments.fig6_latent",
     "fig7": "bayes_brdf.experiments.fig7_guided",
+    "wiersma": "bayes_brdf.experiments.wiersma",
 }
 
 
