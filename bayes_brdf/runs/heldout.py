@@ -3,9 +3,10 @@
 * :func:`predict` -- what the posterior predicts on views with photos: the PIT values of the photos
   under the posterior predictive, the image-space std (Eq. 11), the MAP render and its error.
 * :func:`heldout_report` -- the held-out check of ``bayes-brdf fit`` and the demo: per-view std and
-  error maps (EXR + PNG), Pearson / Spearman correlation between std and error, and the coverage of
-  the central 50 % and 90 % predictive intervals; saturated (clipped) pixels are left out, since they
-  only bound the radiance from below.
+  error maps (EXR + PNG), Pearson / Spearman correlation between std and error (the image-space std of
+  Eq. 11, and under ``predictive`` the posterior predictive's std, which adds the model's noise), and the
+  coverage of the central 50 % and 90 % predictive intervals; saturated (clipped) pixels are left out,
+  since they only bound the radiance from below.
 * :func:`fitted_noise` -- the noise level the fitted photos show (the Laplace scale of the MAP's
   residuals), to compare with the model's ``sigma``.
 """
