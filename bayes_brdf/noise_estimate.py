@@ -8,6 +8,11 @@ pixel, ``g = s(y) / s(y_ref)`` at the particles' mean render ``y``. Sampling sti
 out) the one overall scale ``sigma``, so only the shape is fixed here. The estimate is deterministic
 given the data, the model and the seed, and is recorded in the posterior (``meta["noise_level"]``).
 
+Photos that a Monte Carlo renderer made carry its own variance per pixel (``Observations.variance``): that
+is known noise on top of the photo noise, so the noise level is fitted around it (``s_total^2 = s(y)^2 +
+tau^2``, :func:`~bayes_brdf.models.noise.render_noise`) and the per-pixel scale is ``sigma`` times
+``s_total / s(y_ref)``.
+
 Under ``view_gain = "estimated"`` (:mod:`bayes_brdf.models.gains`) the same particles first give each
 photo's overall gain; the photos are divided by their gains before the noise level is fitted to their
 residuals, and the rest of the run samples the corrected photos (``meta["view_gains"]``).
@@ -20,7 +25,7 @@ from typing import NamedTuple
 
 from .models.data import ModelData
 from .models.gains import ViewGains, estimate_gains
-from .models.noise import NoiseLevel, fit_noise_level
+from .models.noise import NoiseLevel, fit_noise_level, render_noise
 from .render.shade import shade
 
 
@@ -67,9 +72,20 @@ def estimate_noise(model, data: ModelData, values: dict) -> NoiseEstimate:
             gains = estimate_gains(signal.mean(0), data.images, data.weight)
             if gains is not None:
                 data = data.with_gains(gains.gains())
-        level = fit_noise_level(signal[:, w].reshape(-1), (data.images[None] - r)[:, w].reshape(-1, 3),
-                                kind=getattr(model, "likelihood", "laplace"))
-        rel = level.relative(signal.mean(0)).to(data.dtype)
+        kind = getattr(model, "likelihood", "laplace")
+        var = getattr(data.observations, "variance", None)
+        tau2 = None
+        if var is not None and tuple(var.shape) == tuple(data.images.shape):    # the photos' own render noise
+            tau2 = render_noise(var.to(device=data.device, dtype=torch.float64), kind)   # [V, H, W]
+        n = signal.shape[0]
+        level = fit_noise_level(signal[:, w].reshape(-1), (data.images[None] - r)[:, w].reshape(-1, 3), kind=kind,
+                                extra=None if tau2 is None else tau2[w][None].expand(n, -1).reshape(-1))
+        if tau2 is None:
+            rel = level.relative(signal.mean(0)).to(data.dtype)
+        else:                                   # s_total = sqrt(s(y)^2 + tau^2), relative to s(y_ref)
+            ref = float(level.scale(torch.tensor(level.y_ref, dtype=torch.float64)))
+            s = level.scale(signal.mean(0).to(torch.float64))
+            rel = ((s * s + tau2).sqrt() / ref).to(data.dtype)
         rel = torch.where(w, rel, torch.ones_like(rel))
         cens = None
         if data.censored is not None:

@@ -9,6 +9,9 @@ An :class:`Observations` bundle holds, for ``V`` views of one sample:
 * ``mask``   -- ``[V, H, W]`` bool, ``True`` where a pixel is usable (optional)
 * ``saturated`` -- ``[V, H, W]`` bool, ``True`` where the photo clipped at its
   maximum in any channel: the value is only a lower bound on the radiance (optional)
+* ``variance`` -- ``[V, H, W, 3]`` the variance of each pixel's value that the renderer itself left (a Monte
+  Carlo render's own noise, e.g. ``bayes-brdf render --integrator path``), added to the photo noise by the
+  likelihood and the predictive (optional; :mod:`bayes_brdf.models.noise`)
 * ``meta``   -- free-form provenance (source format, path, units, gamma, ...)
 """
 from __future__ import annotations
@@ -42,6 +45,7 @@ class Observations:
     mask: Tensor | None = None
     saturated: Tensor | None = None
     meta: dict = field(default_factory=dict)
+    variance: Tensor | None = None
 
     def __post_init__(self):
         self.views = list(self.views)
@@ -58,6 +62,13 @@ class Observations:
             m = getattr(self, name)
             if m is not None and tuple(m.shape) != tuple(im.shape[:3]):
                 raise InputError(f"{name} has shape {tuple(m.shape)}, expected {tuple(im.shape[:3])}")
+        v = self.variance
+        if v is not None:
+            if tuple(v.shape) != tuple(im.shape):
+                raise InputError(f"variance has shape {tuple(v.shape)}, expected {tuple(im.shape)}")
+            if not bool(torch.isfinite(v).all()) or bool((v < 0).any()):
+                raise InputError("the render variance has negative or non-finite values",
+                                 fix="give each pixel's Monte Carlo variance (>= 0)")
 
     @property
     def scene(self) -> Scene:
@@ -80,7 +91,8 @@ class Observations:
         t = torch.as_tensor(idx, dtype=torch.long)
         pick = lambda x: None if x is None else x[t]  # noqa: E731
         return replace(self, views=[self.views[i] for i in idx], images=self.images[t],
-                       mask=pick(self.mask), saturated=pick(self.saturated), meta=dict(self.meta))
+                       mask=pick(self.mask), saturated=pick(self.saturated), meta=dict(self.meta),
+                       variance=pick(self.variance))
 
     def append(self, other: "Observations") -> "Observations":
         """These observations followed by ``other``'s (same surface and resolution), e.g. a new capture round."""
@@ -97,11 +109,17 @@ class Observations:
             a = a if a is not None else torch.full(self.images.shape[:3], fill, dtype=torch.bool, device=dev)
             b = b if b is not None else torch.full(other.images.shape[:3], fill, dtype=torch.bool, device=dev)
             return torch.cat([a.to(dev), b.to(dev)])
+        var = None
+        if self.variance is not None or other.variance is not None:       # a photo without one: no render noise
+            zero = lambda o: torch.zeros_like(o.images, device=dev)  # noqa: E731
+            var = torch.cat([(self.variance if self.variance is not None else zero(self)).to(dev),
+                             (other.variance if other.variance is not None else zero(other)).to(dev)])
         return replace(self, views=self.views + list(other.views),
                        images=torch.cat([self.images, other.images.to(dev, self.images.dtype)]),
                        mask=cat(self.mask, other.mask, True), saturated=cat(self.saturated, other.saturated, False),
-                       meta=dict(self.meta))
+                       meta=dict(self.meta), variance=var)
 
     def to(self, *args, **kwargs) -> "Observations":
         mv = lambda x: None if x is None else x.to(*args, **{k: v for k, v in kwargs.items() if k != "dtype"})  # noqa: E731
-        return replace(self, images=self.images.to(*args, **kwargs), mask=mv(self.mask), saturated=mv(self.saturated))
+        return replace(self, images=self.images.to(*args, **kwargs), mask=mv(self.mask), saturated=mv(self.saturated),
+                       variance=None if self.variance is None else self.variance.to(*args, **kwargs))

@@ -103,7 +103,8 @@ def image_std(post, views, surface: PlanarSample | None = None, *, return_mean: 
 
 
 def predictive_cdf(post, views, images: Tensor, surface: PlanarSample | None = None, *,
-                   sigma: float | None = None, kind: str | None = None, chunk_views: int | None = None):
+                   sigma: float | None = None, kind: str | None = None, chunk_views: int | None = None,
+                   variance: Tensor | None = None):
     """PIT values ``F(y) [V, H, W, 3]`` of observed ``images`` under the posterior predictive, and the renders' std.
 
     The predictive of a pixel is the mixture over particles of the model's
@@ -117,6 +118,9 @@ def predictive_cdf(post, views, images: Tensor, surface: PlanarSample | None = N
     over channels of its render there. The ``views`` are new photos: where the run estimated the fitted
     photos' gains (``post.view_gains``, :mod:`bayes_brdf.models.gains`), a new photo's unknown gain is
     integrated out over equal-probability nodes of its predictive (``g R_i`` in place of ``R_i``).
+    ``variance [V, H, W, 3]``: the new photos' own render noise (photos a Monte Carlo renderer made,
+    ``Observations.variance``), added to the noise: a scale ``sqrt(scale^2 + variance / 2)`` (Laplace, matched
+    by its variance) or ``sqrt(scale^2 + variance)`` (Gaussian).
     Returns ``(F, std, mean)``, each ``[V, H, W, 3]``; ``std`` and ``mean`` are the renders' (Eq. 11).
     """
     model = getattr(post, "model", None)
@@ -131,10 +135,15 @@ def predictive_cdf(post, views, images: Tensor, surface: PlanarSample | None = N
     Fs, stds, means = [], [], []
     for s, e, r, _ in particle_renders(post, views, surface, chunk_views=chunk_views):
         obs = y[s:e].to(r).permute(0, 3, 1, 2)[None]
+        extra = None
+        if variance is not None:
+            extra = torch.as_tensor(variance)[s:e].to(r).permute(0, 3, 1, 2)[None] / (2.0 if kind == "laplace" else 1.0)
         F = torch.zeros_like(r[0])
         for lg in nodes:
             rg = r * math.exp(lg) if lg else r
             scale = sigma if level is None else sigma * level.relative(rg.mean(2, keepdim=True)).to(r)
+            if extra is not None:
+                scale = (scale * scale + extra).sqrt()
             t = (obs - rg) / scale
             if kind == "laplace":
                 cdf = torch.where(t < 0, 0.5 * torch.exp(t.clamp_max(0)), 1 - 0.5 * torch.exp(-t.clamp_min(0)))
@@ -148,7 +157,8 @@ def predictive_cdf(post, views, images: Tensor, surface: PlanarSample | None = N
     return cat(Fs), cat(stds), cat(means)
 
 
-def predictive_std(post, std: Tensor, mean: Tensor, *, sigma: float | None = None) -> Tensor:
+def predictive_std(post, std: Tensor, mean: Tensor, *, sigma: float | None = None,
+                   variance: Tensor | None = None) -> Tensor:
     """The posterior predictive's std of a new photo's pixels: ``sqrt(std^2 + noise variance)``, the renders'
     spread (Eq. 11, ``std``) plus the model's noise at the particles' mean render ``mean`` (both as
     :func:`predictive_cdf` returns them): Laplace ``2 (sigma g(R))^2``, Gaussian ``(sigma g(R))^2``, with
@@ -169,6 +179,8 @@ def predictive_std(post, std: Tensor, mean: Tensor, *, sigma: float | None = Non
     level = getattr(post, "noise_level", None)
     scale = sigma if level is None else sigma * level.relative(mean.mean(-1, keepdim=True)).to(mean)
     var = (2.0 if kind == "laplace" else 1.0) * scale * scale
+    if variance is not None:                  # the new photos' own render noise (Observations.variance)
+        var = var + variance.to(std)
     return (std * std + var).sqrt()
 
 

@@ -161,16 +161,36 @@ def _check_integrator(a) -> None:
     a.max_depth = a.max_depth or 8
 
 
+#: the independent batches a Mitsuba render is split into to estimate each pixel's own variance
+VARIANCE_BATCHES = 8
+
+
+def _variance_batches(spp: int) -> int:
+    """The batches of ``spp`` samples that estimate a render's variance: the most of 8, 4, 2 that divide ``spp``
+    into at least two samples each (1: ``spp`` too small, no variance).
+
+    Example:
+        >>> _variance_batches(64), _variance_batches(12), _variance_batches(3)
+        (8, 4, 1)
+    """
+    return next((b for b in (VARIANCE_BATCHES, 4, 2) if spp % b == 0 and spp >= 2 * b), 1)
+
+
 def _mitsuba_view(maps, view, surface, a, k: int):
-    """One view ``[H, W, 3]`` rendered by Mitsuba (``--integrator direct|path``, a perspective sensor with a box
-    filter: pixel areas): a plane as the two-triangle mesh of the same square."""
+    """One view ``([H, W, 3], its Monte Carlo variance [H, W, 3] or None)`` rendered by Mitsuba (``--integrator
+    direct|path``, a perspective sensor with a box filter: pixel areas): a plane as the two-triangle mesh of
+    the same square; the variance from independent batches of the samples (:func:`_variance_batches`)."""
     from ..render.mesh import Mesh
     from ..render.mitsuba_reference import render_reference
     from ..render.surface import PlanarSample
 
     mesh = Mesh.plane(surface.size) if isinstance(surface, PlanarSample) else surface
-    return render_reference(maps.to("cpu"), [view], mesh, camera="sensor", integrator=a.integrator,
-                            spp=a.spp, max_depth=a.max_depth, seed=a.seed + 104729 * k)[0].float()
+    b = _variance_batches(a.spp)
+    out = render_reference(maps.to("cpu"), [view], mesh, camera="sensor", integrator=a.integrator,
+                           spp=a.spp, max_depth=a.max_depth, seed=a.seed + 104729 * k, batches=b)
+    if b == 1:
+        return out[0].float(), None
+    return out[0][0].float(), out[1][0].float()
 
 
 def cmd_render(a) -> int:
@@ -225,7 +245,7 @@ def cmd_render(a) -> int:
     out.mkdir(parents=True, exist_ok=True)
     if len({tuple(v.resolution) for v in views}) > 1:
         raise InputError("the views have different resolutions", fix="render them in separate calls")
-    images = []
+    images, variances = [], []
     t0 = time.perf_counter()
     with torch.no_grad():
         for k, v in enumerate(tqdm(views, desc="render", unit="view",
@@ -234,7 +254,10 @@ def cmd_render(a) -> int:
                 g = GBuffer.build([v], surface, device=a.device)
                 images.append(shade(maps, g)[0, 0].cpu())
             else:
-                images.append(_mitsuba_view(maps, v, surface, a, k))
+                img, var = _mitsuba_view(maps, v, surface, a, k)
+                images.append(img)
+                if var is not None:
+                    variances.append(var)
     per_view = (time.perf_counter() - t0) / max(1, len(views))
     imgs = torch.stack(images)
     meta = {"source": "bayes-brdf render", "material": a.material, "seed": a.seed, "units": "scene units",
@@ -244,7 +267,7 @@ def cmd_render(a) -> int:
                     **({"max_depth": a.max_depth} if a.integrator == "path" else {}))
     if a.env:
         meta.update(environment=str(a.env), env_rotate=a.env_rotate or 0.0, env_scale=a.env_scale or 1.0)
-    obs = Observations(views, imgs, surface, meta=meta)
+    obs = Observations(views, imgs, surface, meta=meta, variance=torch.stack(variances) if variances else None)
     if transforms:
         jf = save_transforms(obs, out, image_format=a.format)
         written = f"transforms.json, images/*.{a.format}, {json.loads(jf.read_text())['mesh']}"
@@ -262,7 +285,8 @@ def cmd_render(a) -> int:
         what += f" under environment '{env.name or env.digest}'" + ("" if views[0].point_lights else " alone")
     how = "" if a.integrator == "ours" else \
         (f" with Mitsuba's {a.integrator} integrator ({a.spp} spp"
-         + (f", max depth {a.max_depth}" if a.integrator == "path" else "") + f"; {per_view:.2f} s per view)")
+         + (f", max depth {a.max_depth}" if a.integrator == "path" else "") + f"; {per_view:.2f} s per view"
+         + (f"; each pixel's render variance from {_variance_batches(a.spp)} batches" if variances else "") + ")")
     print(f"rendered {len(views)} views of {what}{how} at {imgs.shape[1]}x{imgs.shape[2]} -> {out}/ "
           f"({written}, preview_*.png, maps/)"
           + ("; the material's normal map was made flat (an environment light is shaded with the geometry's own "

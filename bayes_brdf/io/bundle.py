@@ -103,6 +103,9 @@ def save_observations(obs: Observations, directory, image_format: str = "exr") -
             if m is not None:
                 e[name] = f"{name}_{i:03d}.png"
                 write_png(d / e[name], m[i].detach().cpu().float(), linear=False, bits=8)
+        if obs.variance is not None:           # the renderer's own variance per pixel (always EXR: exact)
+            e["variance"] = f"variance_{i:03d}.exr"
+            write_exr(d / e["variance"], obs.variance[i].detach().cpu().float())
         entries.append(e)
     envs = _save_environments(obs.views, d)
     smeta, stensors = surface_state(obs.surface)
@@ -231,7 +234,7 @@ def load_observations(directory) -> Observations:
     entries = doc["views"]
     if not isinstance(entries, list) or not entries:
         raise InputError("'views' must be a non-empty list", where=jf)
-    views, images, masks, sats = [], [], [], []
+    views, images, masks, sats, variances = [], [], [], [], []
     for i, e in enumerate(entries):
         if not isinstance(e, dict) or "view" not in e or "image" not in e:
             raise InputError(f"views[{i}] needs 'view' and 'image'", where=jf, fix="re-save the bundle")
@@ -258,6 +261,15 @@ def load_observations(directory) -> Observations:
             raise InputError(f"image is {x.shape[1]}x{x.shape[0]} but {entries[0]['image']} is "
                              f"{images[0].shape[1]}x{images[0].shape[0]}", where=ip, fix="all views must share one size")
         images.append(x)
+        if e.get("variance"):
+            vp = d / str(e["variance"])
+            if not vp.is_file():
+                raise InputError("variance image listed in observations.json is missing", where=vp)
+            vx = torch.from_numpy(np.ascontiguousarray(to_rgb(read_raw(vp)[0]), dtype=np.float32))
+            if tuple(vx.shape) != tuple(x.shape):
+                raise InputError(f"variance image is {vx.shape[1]}x{vx.shape[0]}, its photo {x.shape[1]}x{x.shape[0]}",
+                                 where=vp)
+            variances.append(vx)
         for name, acc in (("mask", masks), ("saturated", sats)):
             if e.get(name):
                 mp = d / str(e[name])
@@ -268,9 +280,13 @@ def load_observations(directory) -> Observations:
         if acc and len(acc) != len(entries):
             raise InputError(f"only {len(acc)} of {len(entries)} views list a {name} image", where=jf,
                              fix="give every view a mask image or none")
+    if variances and len(variances) != len(entries):
+        raise InputError(f"only {len(variances)} of {len(entries)} views list a variance image", where=jf,
+                         fix="give every view a variance image or none")
     meta = doc.get("meta", {}) if isinstance(doc.get("meta", {}), dict) else {}
     try:
         return Observations(views, torch.stack(images), surface, mask=torch.stack(masks) if masks else None,
-                            saturated=torch.stack(sats) if sats else None, meta=meta)
+                            saturated=torch.stack(sats) if sats else None, meta=meta,
+                            variance=torch.stack(variances) if variances else None)
     except InputError as err:
         raise InputError(str(err), where=jf) from None

@@ -404,7 +404,9 @@ def resample_observations(obs: Observations, resolution) -> Observations:
 
     Views get the new camera resolution; ``mask`` and ``saturated`` are
     resampled conservatively: a pixel is ``saturated`` if ANY source pixel it
-    covers was, and stays in ``mask`` (usable) only if ALL of them were.
+    covers was, and stays in ``mask`` (usable) only if ALL of them were. A render's ``variance``
+    is averaged like the images and divided by the number of source pixels a new pixel averages
+    (``H W / (h w)``): the variance of a mean of independent pixels.
 
     Example:
         >>> small = resample_observations(obs, 64)     # doctest: +SKIP
@@ -417,8 +419,12 @@ def resample_observations(obs: Observations, resolution) -> Observations:
     views = [dataclasses.replace(v, camera=dataclasses.replace(v.camera, resolution=(h, w))) for v in obs.views]
     mask = None if obs.mask is None else ~resample_mask(~obs.mask.bool(), (h, w))
     sat = None if obs.saturated is None else resample_mask(obs.saturated, (h, w))
+    var = None
+    if obs.variance is not None:
+        H, W = obs.resolution
+        var = (resample(obs.variance, (h, w)) * (h * w / (H * W))).clamp_min(0).contiguous()
     return Observations(views, resample(obs.images, (h, w)).contiguous(), obs.surface, mask=mask, saturated=sat,
-                        meta=dict(obs.meta))
+                        meta=dict(obs.meta), variance=var)
 
 
 # ------------------------------------------------------------------ describe

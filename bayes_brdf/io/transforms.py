@@ -482,6 +482,12 @@ def load_transforms(path, resolution=None, gamma=2.2, *, max_resolution=None) ->
                 raise InputError(f"frames[{i}]: {what} image {f[key]} is missing", where=jf,
                                  fix=f"put it at {folder / f[key]} or remove frames[{i}].{key}")
             masks[what] = mp
+        if f.get("variance") is not None:      # the renderer's own variance per pixel (a linear EXR)
+            vp = _find(folder, f["variance"]) if isinstance(f["variance"], str) else None
+            if vp is None:
+                raise InputError(f"frames[{i}]: variance image {f['variance']!r} is missing", where=jf,
+                                 fix=f"put it at {folder / str(f['variance'])} or remove frames[{i}].variance")
+            masks["variance"] = vp
         m = _matrix(f["transform_matrix"], jf, f"frames[{i}].transform_matrix")
         r = rot @ m[:3, :3]
         pos = s * (rot @ m[:3, 3])
@@ -490,7 +496,7 @@ def load_transforms(path, resolution=None, gamma=2.2, *, max_resolution=None) ->
                        "lights": _frame_lights(lights, top, f, i, pos)})
     # pass 2: photos
     decode = _Decoder(gamma)
-    images, sats, usable, native, target, views = [], [], [], None, None, []
+    images, sats, usable, native, target, views, variances = [], [], [], None, None, [], []
     for i, fr in enumerate(parsed):
         lin, sat = decode(fr["image"])
         h, w = lin.shape[:2]
@@ -511,10 +517,21 @@ def load_transforms(path, resolution=None, gamma=2.2, *, max_resolution=None) ->
             mask = _read_mask(fr["masks"]["mask"], (h, w), "mask", jf)
         if "saturated" in fr["masks"]:
             sat = sat | _read_mask(fr["masks"]["saturated"], (h, w), "saturated", jf)
+        var = None
+        if "variance" in fr["masks"]:
+            var = torch.from_numpy(np.ascontiguousarray(to_rgb(read_raw(fr["masks"]["variance"])[0]),
+                                                        dtype=np.float32))
+            if tuple(var.shape[:2]) != (h, w):
+                raise InputError(f"frames[{i}]: the variance image is {var.shape[1]}x{var.shape[0]}, the photo "
+                                 f"{w}x{h}", where=jf)
         if target is not None:
             lin = resample(lin[None], target)[0]
             sat = resample_mask(sat[None], target)[0]
             mask = ~resample_mask(~mask[None], target)[0]
+            if var is not None:                  # a mean of independent pixels: the variance over their count
+                var = (resample(var[None], target)[0] * (target[0] * target[1] / (h * w))).clamp_min(0)
+        if var is not None:
+            variances.append(var)
         images.append(lin)
         sats.append(sat)
         usable.append(mask)
@@ -531,8 +548,12 @@ def load_transforms(path, resolution=None, gamma=2.2, *, max_resolution=None) ->
                        for fr in parsed]}
     if lights.used:
         meta["environment_maps"] = list(lights.used)
+    if variances and len(variances) != len(parsed):
+        raise InputError(f"only {len(variances)} of {len(parsed)} frames give a variance image", where=jf,
+                         fix="give every frame a variance image or none")
     return Observations(views, torch.stack(images).contiguous(), mesh, mask=torch.stack(usable),
-                        saturated=torch.stack(sats), meta=meta)
+                        saturated=torch.stack(sats), meta=meta,
+                        variance=torch.stack(variances).contiguous() if variances else None)
 
 
 # ------------------------------------------------------------------ writing
@@ -684,6 +705,9 @@ def save_transforms(obs, folder, image_format: str = "exr", *, mesh_path: str | 
             if keep:
                 fr[key] = f"{'masks' if name == 'mask' else name}/frame_{i:03d}.png"
                 write_png(out / fr[key], mk[i].detach().cpu().float(), linear=False)
+        if obs.variance is not None:           # the renderer's own variance per pixel (linear EXR)
+            fr["variance"] = f"variance/frame_{i:03d}.exr"
+            write_exr(out / fr["variance"], obs.variance[i].detach().cpu().float())
     for name, env in dict(env_files.values()).items():
         write_exr(out / name, env.radiance)
     write_text(out / mp, obj_text(obs.surface))

@@ -75,13 +75,31 @@ def check_pixel_noise(kind) -> None:
                              "\"constant\": one scale for every pixel")
 
 
-def fit_noise_level(signal: Tensor, residual: Tensor, *, kind: str = "laplace", iters: int = 200) -> NoiseLevel:
+def render_noise(variance: Tensor, kind: str = "laplace") -> Tensor:
+    """A renderer's own variance of a value (``[..., 3]``: a Monte Carlo render's, :attr:`Observations.variance`)
+    as a squared noise scale per pixel ``[...]``: the mean over channels, over 2 for a Laplace scale (a Laplace
+    of scale ``s`` has variance ``2 s^2``), as it is for a Gaussian std. The noise of a photo that a renderer
+    made is its photo noise plus this: ``s_total^2 = s(y)^2 + render_noise`` (the Laplace part matched by its
+    variance).
+
+    Example:
+        >>> [round(x, 6) for x in render_noise(torch.tensor([[2e-4, 4e-4, 6e-4]])).tolist()]
+        [0.0002]
+    """
+    v = variance.mean(-1)
+    return v / 2.0 if kind == "laplace" else v
+
+
+def fit_noise_level(signal: Tensor, residual: Tensor, *, kind: str = "laplace", iters: int = 200,
+                    extra: Tensor | None = None) -> NoiseLevel:
     """Maximum-likelihood ``a, b, c >= 0`` of ``s(y)^2 = a + b y + c y^2`` from residuals.
 
     Args:
         signal: the radiance of each value ``[K]`` (a render: what the noise depends on).
         residual: ``photo - render`` ``[K]`` or ``[K, C]`` (every channel of a pixel shares its scale).
         kind: ``"laplace"`` (``s`` is the Laplace scale) or ``"gaussian"`` (the std).
+        extra: a known squared scale per value ``[K]`` on top of ``s(y)^2`` (:func:`render_noise`: the photos'
+            own Monte Carlo noise), fitted around rather than into ``a, b, c``.
 
     Example:
         >>> g = torch.Generator().manual_seed(0)
@@ -95,6 +113,7 @@ def fit_noise_level(signal: Tensor, residual: Tensor, *, kind: str = "laplace", 
     """
     y = signal.detach().to(torch.float64).reshape(-1)
     r = residual.detach().to(torch.float64).reshape(y.shape[0], -1).abs()
+    ex = 0.0 if extra is None else extra.detach().to(torch.float64).reshape(-1).clamp_min(0)
     if y.numel() < 10:
         raise InputError(f"too few pixels ({y.numel()}) to estimate a noise level", fix="use pixel_noise = \"constant\"")
     y = y.clamp_min(0)
@@ -108,7 +127,7 @@ def fit_noise_level(signal: Tensor, residual: Tensor, *, kind: str = "laplace", 
 
     def nll():
         a, b, c = theta.exp()
-        s = (a + b * y + c * y2).sqrt()[:, None]
+        s = (a + b * y + c * y2 + ex).sqrt()[:, None]
         if kind == "laplace":
             return (torch.log(s) + r / s).mean()
         return (torch.log(s) + 0.5 * (r / s) ** 2).mean()

@@ -474,6 +474,14 @@ PRINCIPLED_SCENES = MeshSceneCache(lambda mesh, variant: ReferenceScene(mesh, va
 PRINCIPLED_MAPS = ("base_color", "metallic", "roughness")
 
 
+def _check_batches(batches, spp) -> None:
+    if isinstance(batches, bool) or not isinstance(batches, int) or batches < 1:
+        raise InputError(f"batches must be a positive integer, got {batches!r}")
+    if batches > 1 and (int(spp) % batches or int(spp) < 2 * batches):
+        raise InputError(f"spp {spp} must be a multiple of batches {batches}, at least twice it",
+                         fix=f"use spp = {2 * batches * max(1, -(-int(spp) // (2 * batches)))}")
+
+
 def _is_environment(light) -> bool:
     return getattr(light, "kind", None) == "environment"
 
@@ -496,7 +504,7 @@ def _check(maps: SVBRDF, views) -> SVBRDF:
 
 def render_reference(maps: SVBRDF, views, mesh, *, camera: str = "rays", spp: int = 64, eps: float = 1e-8,
                      ks_factor: bool = True, seed: int = 0, variant: str | None = None, integrator: str = "direct",
-                     max_depth: int = 8) -> Tensor:
+                     max_depth: int = 8, batches: int = 1):
     """Mitsuba's render ``[V, H, W, 3]`` (float64, linear radiance) of ``maps`` on ``mesh`` under ``views``.
 
     The counterpart of ``shade.render(maps, views, mesh)[0]`` (see the module docstring): ``camera``
@@ -514,6 +522,11 @@ def render_reference(maps: SVBRDF, views, mesh, *, camera: str = "rays", spp: in
     default), ``spp`` samples per pixel for every light: light that bounced between parts of the mesh
     (interreflections), with Monte Carlo noise ~ 1 / sqrt(spp). Light transport is linear in the emitters,
     so the sum of one pass per light is the render of all of them at once.
+
+    ``batches = B > 1`` also returns the renderer's own variance of each pixel: ``(renders, variance)``, both
+    ``[V, H, W, 3]``, from ``B`` independent renders of ``spp / B`` samples (``spp`` a multiple of ``B``), the
+    variance of their mean estimated from their spread (what a likelihood adds to the photo noise,
+    :mod:`bayes_brdf.models.noise`).
 
     Example:
         >>> from bayes_brdf.render import SVBRDF, collocated_views     # doctest: +SKIP
@@ -533,6 +546,7 @@ def render_reference(maps: SVBRDF, views, mesh, *, camera: str = "rays", spp: in
         raise InputError(f"unknown integrator {integrator!r}", fix=f"use one of {', '.join(INTEGRATORS)}")
     if integrator == "path" and (isinstance(max_depth, bool) or int(max_depth) != max_depth or max_depth < 2):
         raise InputError(f"max_depth must be an integer >= 2 (2: direct light only), got {max_depth!r}")
+    _check_batches(batches, spp)
     views = list(views)
     if not views:
         raise InputError("no views given", fix="pass at least one View")
@@ -544,14 +558,29 @@ def render_reference(maps: SVBRDF, views, mesh, *, camera: str = "rays", spp: in
         rs = SCENES.get(mesh, mi.variant())
         rs.set_maps(maps, eps=eps, ks_factor=ks_factor)
         path = rs.path_integrator(int(max_depth)) if integrator == "path" else None
-        imgs = [rs.render_rays(v.camera, v.lights, seed + 104729 * k, int(spp), path) if camera == "rays" else
-                rs.render_sensor(v.camera, v.lights, int(spp), seed + 104729 * k, path)
-                for k, v in enumerate(views)]
-    return torch.stack(imgs)
+        return _render_views(rs, views, camera, int(spp), seed, path, batches)
+
+
+def _render_views(rs, views, camera: str, spp: int, seed: int, path, batches: int):
+    """The views' renders ``[V, H, W, 3]`` by ``rs`` (view ``k`` seeded ``seed + 104729 k``); with ``batches``
+    ``B > 1``, ``(renders, variance)``: ``B`` independent renders of ``spp / B`` samples each (batch ``b`` seeded
+    ``+ 7 b``), their mean, and the variance of that mean estimated from their spread (``var / B``, ``[V, H, W,
+    3]``): the renderer's own Monte Carlo variance of each pixel."""
+    def one(k, v, n, s):
+        return rs.render_rays(v.camera, v.lights, s, n, path) if camera == "rays" else \
+            rs.render_sensor(v.camera, v.lights, n, s, path)
+    if batches <= 1:
+        return torch.stack([one(k, v, spp, seed + 104729 * k) for k, v in enumerate(views)])
+    imgs, var = [], []
+    for k, v in enumerate(views):
+        b = torch.stack([one(k, v, spp // batches, seed + 104729 * k + 7 * i) for i in range(batches)])
+        imgs.append(b.mean(0))
+        var.append(b.var(0) / batches)
+    return torch.stack(imgs), torch.stack(var)
 
 
 def render_principled(textures: dict, views, mesh, *, camera: str = "sensor", spp: int = 64, seed: int = 0,
-                      variant: str | None = None, integrator: str = "path", max_depth: int = 8) -> Tensor:
+                      variant: str | None = None, integrator: str = "path", max_depth: int = 8, batches: int = 1):
     """Mitsuba's render ``[V, H, W, 3]`` of a metallic-roughness material through its own ``principled`` BSDF.
 
     ``textures``: ``{"base_color": [3, R, R], "metallic": [1, R, R], "roughness": [1, R, R]}`` in our map
@@ -572,6 +601,7 @@ def render_principled(textures: dict, views, mesh, *, camera: str = "sensor", sp
         t = torch.as_tensor(textures[name])
         if t.dim() != 3 or t.shape[0] != c:
             raise InputError(f"principled texture {name} has shape {tuple(t.shape)}, expected [{c}, H, W]")
+    _check_batches(batches, spp)
     views = list(views)
     if not views:
         raise InputError("no views given", fix="pass at least one View")
@@ -580,10 +610,7 @@ def render_principled(textures: dict, views, mesh, *, camera: str = "sensor", sp
         rs = PRINCIPLED_SCENES.get(mesh, mi.variant())
         rs.set_principled({k: torch.as_tensor(v) for k, v in textures.items()})
         path = rs.path_integrator(int(max_depth)) if integrator == "path" else None
-        imgs = [rs.render_rays(v.camera, v.lights, seed + 104729 * k, int(spp), path) if camera == "rays" else
-                rs.render_sensor(v.camera, v.lights, int(spp), seed + 104729 * k, path)
-                for k, v in enumerate(views)]
-    return torch.stack(imgs)
+        return _render_views(rs, views, camera, int(spp), seed, path, batches)
 
 
 def psnr(ours: Tensor, other: Tensor, peak: float | None = None) -> float:

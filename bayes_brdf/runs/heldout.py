@@ -31,14 +31,16 @@ class Predicted(NamedTuple):
     inside: Tensor      #: pixels on the sample (bool)
 
 
-def predict(post, views, images: Tensor, surface, *, sigma: float | None = None) -> Predicted:
+def predict(post, views, images: Tensor, surface, *, sigma: float | None = None,
+            variance: Tensor | None = None) -> Predicted:
     """What ``post`` predicts for ``images`` seen from ``views`` of ``surface`` (``sigma``: the noise
-    scale of the predictive, by default the posterior's; see :func:`~bayes_brdf.uncertainty.predictive_cdf`)."""
+    scale of the predictive, by default the posterior's; ``variance``: the images' own render noise; see
+    :func:`~bayes_brdf.uncertainty.predictive_cdf`)."""
     from ..render.gbuffer import GBuffer
     from ..render.shade import render
     from ..uncertainty import predictive_cdf
 
-    pit, std, mean = predictive_cdf(post, views, images, surface, sigma=sigma)
+    pit, std, mean = predictive_cdf(post, views, images, surface, sigma=sigma, variance=variance)
     pred = render(post.maps("map"), views, surface)[0]
     y = images.to(pred)
     return Predicted(pit, std, mean, pred, y, (pred - y).abs(), GBuffer.build(views, surface).mask)
@@ -75,7 +77,7 @@ def heldout_report(post, obs, out: Path, fitted_sigma: float | None = None) -> d
     from ..plots import write_map
     from ..uncertainty import correlations, coverage, predictive_cdf, predictive_std
 
-    F, std, mean, pred, y, err, inside = predict(post, obs.views, obs.images, obs.surface)
+    F, std, mean, pred, y, err, inside = predict(post, obs.views, obs.images, obs.surface, variance=obs.variance)
     valid = inside.clone()
     sat = obs.saturated & inside if obs.saturated is not None else torch.zeros_like(inside)
     n_sat = int(sat.sum())
@@ -103,10 +105,11 @@ def heldout_report(post, obs, out: Path, fitted_sigma: float | None = None) -> d
                "coverage": coverage(F[j][vm])}
         per_view.append(rec)
     vv = valid[..., None].expand_as(err)
-    pstd = predictive_std(post, std, mean)
+    pstd = predictive_std(post, std, mean, variance=obs.variance)
     extra = {"predictive": {"mean_std": float(pstd[vv].mean()), **correlations(pstd[vv], err[vv])}}
     if fitted_sigma:
-        F2, _, _ = predictive_cdf(post, obs.views, obs.images, obs.surface, sigma=fitted_sigma)
+        F2, _, _ = predictive_cdf(post, obs.views, obs.images, obs.surface, sigma=fitted_sigma,
+                                  variance=obs.variance)
         extra.update(fitted_sigma=fitted_sigma, coverage_with_fitted_sigma=coverage(F2[vv]))
     return {**extra, "pixels": int(valid.sum()), "saturated_left_out": n_sat, "map_range": [0.0, vmax],
             "mean_abs_error": float(err[vv].mean()), "mean_std": float(std[vv].mean()),
