@@ -190,6 +190,10 @@ def infer(model: "Callable | str | dict", observations: "Observations | ModelDat
         meta["noise_level"] = noise_level.to_dict()
     if gains is not None:
         meta["view_gains"] = gains.to_dict()
+    var = getattr(data.observations, "variance", None)
+    if var is not None and tuple(var.shape) == tuple(data.images.shape):   # photos a Monte Carlo renderer made
+        w = data.weight > 0
+        meta["render_noise"] = float(var.to(data.device)[w].double().mean())
     post = Posterior(pot.to_constrained(res.z), energies, z=res.z, meta=meta, potential=pot, model=model,
                      log={"seconds": res.seconds, "resumed_from": res.resumed_from, "steps": res.steps},
                      surface=data.observations.surface)

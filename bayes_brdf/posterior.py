@@ -83,6 +83,14 @@ class Posterior:
         return NoiseLevel.from_dict(d)
 
     @property
+    def render_noise(self) -> float | None:
+        """The mean variance the fitted photos' renderer left in them (``Observations.variance``: photos a Monte
+        Carlo renderer made), in image units squared, or ``None``: guidance adds it to the noise of a candidate's
+        future photo (``noise_var = "observation"``)."""
+        v = self.meta.get("render_noise")
+        return float(v) if isinstance(v, (int, float)) else None
+
+    @property
     def view_gains(self):
         """The fitted photos' gains (:class:`~bayes_brdf.models.gains.ViewGains`) the run estimated
         (``view_gain = "estimated"``), or ``None``: every photo as bright as the capture states."""

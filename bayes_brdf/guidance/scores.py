@@ -80,13 +80,16 @@ def parse_noise_var(value) -> "float | str":
 
 
 def observation_noise_var(post) -> float:
-    """Variance of the model's observation noise ``W`` (Eq. 12): ``2 sigma^2`` for Laplace, ``sigma^2`` for Gaussian."""
+    """Variance of the model's observation noise ``W`` (Eq. 12): ``2 sigma^2`` for Laplace, ``sigma^2`` for Gaussian,
+    plus the mean render variance of the fitted photos where a Monte Carlo renderer made them
+    (``post.render_noise``): a candidate's photo, taken the same way, will carry it too."""
     model = getattr(post, "model", None)
     sigma = getattr(post, "noise_sigma", None)
     if sigma is None:
         raise InputError("noise_var='observation' needs the posterior's model (its sigma)",
                          fix="pass noise_var as a number (image units squared)")
-    return (2.0 if getattr(model, "likelihood", "laplace") == "laplace" else 1.0) * float(sigma) ** 2
+    render = getattr(post, "render_noise", None) or 0.0
+    return (2.0 if getattr(model, "likelihood", "laplace") == "laplace" else 1.0) * float(sigma) ** 2 + float(render)
 
 
 def score_views(post: "Posterior | SVBRDF", candidates: list, surface=None, *, estimator: str = "mc", nodes: int = 8,

@@ -112,3 +112,16 @@ def test_the_variance_travels_through_bundles_transforms_and_resampling(tmp_path
         bb.Observations(obs.views, obs.images, PlanarSample(2.0), variance=-obs.variance - 1)
     with pytest.raises(InputError, match="variance has shape"):
         bb.Observations(obs.views, obs.images, PlanarSample(2.0), variance=obs.variance[..., :1])
+
+
+def test_the_posterior_records_the_render_noise_and_guidance_adds_it():
+    from bayes_brdf.guidance.scores import observation_noise_var
+
+    obs, _ = _capture(resolution=8, views=3)
+    post = bb.infer(bb.models.homogeneous(albedo="gray"), obs, "spos", steps=40, progress=False)
+    assert post.render_noise == pytest.approx(float(obs.variance[ModelData.from_observations(obs).weight > 0]
+                                                    .double().mean()), rel=1e-6)
+    assert observation_noise_var(post) == pytest.approx(2 * post.noise_sigma ** 2 + post.render_noise, rel=1e-9)
+    plain = bb.infer(bb.models.homogeneous(albedo="gray"), dataclasses.replace(obs, variance=None), "spos",
+                     steps=40, progress=False)
+    assert plain.render_noise is None and observation_noise_var(plain) == pytest.approx(2 * plain.noise_sigma ** 2)
