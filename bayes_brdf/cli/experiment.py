@@ -17,11 +17,11 @@ def add_parser(sub):
                                    "cores (what CI runs); 'full' is paper-sized. 'bayes-brdf experiment list' shows "
                                    "them all.")
     e.add_argument("name", help="experiment name (fig2, fig3, fig4, fig5, fig6, fig7, wiersma) or 'list'")
-    e.add_argument("--preset", default="small",
+    e.add_argument("--preset", default=None,
                    help="small or full; fig4 and fig7 also mesh_small and mesh (the same on a mesh: the bowl, the "
                         "bunny of ../shared/data); under a known environment map (the ballroom of ../shared/data): "
                         "fig3 env_small and env_full (the environment-lit rows), fig4 mesh_env_small and mesh_env; "
-                        "'experiment list' shows every preset (default: %(default)s)")
+                        "'experiment list' shows every preset (default: small; wiersma: full, the peer's protocol)")
     e.add_argument("--set", type=key_value, action="append", default=[], metavar="KEY=VALUE",
                    help="override a preset setting, e.g. steps=2000 (repeatable)")
     e.add_argument("--seed", type=int, default=0, help="random seed (default: %(default)s)")
@@ -44,6 +44,7 @@ def run(a) -> int:
     from ..io.outputs import check_folder
 
     m = get(a.name)
+    a.preset = a.preset or getattr(m, "DEFAULT_PRESET", "small")
     cfg = preset(m, a.preset, dict(a.set))
     out = check_folder(a.out or f"out/experiments/{a.name}")
     t = time.perf_counter()

@@ -91,9 +91,22 @@ def _views_from_spec(spec: str, a, target=(0.0, 0.0, 0.0)) -> list:
 
 
 def _load_material(name: str, a):
-    from ..io import load_svbrdf
+    """The material to render: a procedural one, a maps folder, or a metallic-roughness folder (``base_color``,
+    ``metallic``, ``roughness``; :attr:`a.principled` then holds those maps, and the returned SVBRDF is what our
+    renderer draws of them, :func:`~bayes_brdf.models.metallic.metallic_to_svbrdf`)."""
+    from ..io import is_metallic_folder, load_metallic_maps, load_svbrdf
     from ..materials import MATERIALS, make_material
 
+    a.principled = None
+    if Path(name).is_dir() and is_metallic_folder(name):
+        import torch
+
+        from ..models.metallic import metallic_to_svbrdf
+        t = load_metallic_maps(name)
+        a.principled = t
+        flat = torch.zeros_like(t["base_color"])
+        flat[2] = 1.0
+        return metallic_to_svbrdf(t["base_color"], t["metallic"], t["roughness"], flat)
     if Path(name).is_dir():
         return load_svbrdf(name)
     if name not in MATERIALS:
@@ -184,20 +197,26 @@ def _mitsuba_view(maps, view, surface, a, k: int):
     from ..render.mitsuba_reference import render_reference
     from ..render.surface import PlanarSample
 
+    from ..render.mitsuba_reference import render_principled
+
     mesh = Mesh.plane(surface.size) if isinstance(surface, PlanarSample) else surface
     b = _variance_batches(a.spp)
-    out = render_reference(maps.to("cpu"), [view], mesh, camera="sensor", integrator=a.integrator,
-                           spp=a.spp, max_depth=a.max_depth, seed=a.seed + 104729 * k, batches=b)
-    if b == 1:
-        return out[0].float(), None
-    return out[0][0].float(), out[1][0].float()
+    kw = dict(camera="sensor", integrator=a.integrator, spp=a.spp, max_depth=a.max_depth, seed=a.seed + 104729 * k,
+              batches=b)
+    if getattr(a, "principled", None) is not None:      # a metallic-roughness material: Mitsuba's principled BSDF
+        out = render_principled(a.principled, [view], mesh, **kw)
+    else:
+        out = render_reference(maps.to("cpu"), [view], mesh, **kw)
+    if b == 1:                              # float rounding can leave a -1e-12 (principled): radiance is >= 0
+        return out[0].float().clamp_min(0), None
+    return out[0][0].float().clamp_min(0), out[1][0].float()
 
 
 def cmd_render(a) -> int:
     import torch
     from tqdm import tqdm
 
-    from ..io import load_capture, save_observations, save_svbrdf, save_transforms, write_png
+    from ..io import load_capture, save_observations, save_svbrdf, save_transforms, write_exr, write_png
     from ..observations import Observations
     from ..render.gbuffer import GBuffer
     from ..render.shade import shade
@@ -277,9 +296,15 @@ def cmd_render(a) -> int:
         save_observations(obs, out, image_format=a.format)
         written = f"observations.json, {a.format.upper()} images"
     save_svbrdf(maps.to("cpu"), out / "maps")
+    if getattr(a, "principled", None) is not None:       # the metallic-roughness maps it was made from
+        for name, t in a.principled.items():
+            write_exr(out / "maps" / f"{name}.exr", t.permute(1, 2, 0).contiguous())
     for i, im in enumerate(imgs):
         write_png(out / f"preview_{i:02d}.png", im.clamp(0, 1).numpy())
     what = f"'{a.material}'" + (f" on mesh '{surface.name}'" if not isinstance(surface, PlanarSample) else "")
+    if getattr(a, "principled", None) is not None:
+        what += " (metallic-roughness" + (": Mitsuba's principled BSDF)" if a.integrator != "ours" else
+                                          ": our BRDF, kd = b (1 - m), F0 = lerp(0.04, b, m))")
     env = next((v.environment for v in views if v.environment is not None), None)
     if env is not None:
         what += f" under environment '{env.name or env.digest}'" + ("" if views[0].point_lights else " alone")
@@ -314,7 +339,9 @@ def build_parser() -> argparse.ArgumentParser:
                                    "bundle (observations.json + images), sRGB previews and the maps. With --mesh the "
                                    "material covers a mesh (through its uv), the views look at the mesh centre, and the "
                                    "result is a transforms.json capture (images, the mesh as OBJ) that inspect reads.")
-    r.add_argument("material", help="procedural material name, or a folder with albedo/roughness/specular/normal maps")
+    r.add_argument("material", help="procedural material name, a folder with albedo/roughness/specular/normal maps, or "
+                                    "a metallic-roughness folder (base_color, metallic, roughness: rendered by "
+                                    "Mitsuba's principled BSDF with --integrator direct|path)")
     src = r.add_mutually_exclusive_group()
     src.add_argument("--views", default="fibonacci:8",
                      help="fibonacci:N, sobol:N, random:N (collocated, hemisphere), orbit:N, or a JSON file of views "

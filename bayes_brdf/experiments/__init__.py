@@ -3,7 +3,8 @@
 Every experiment module has ``DESCRIPTION``, ``PRESETS`` (``"small"``: minutes or less on 2 CPU cores,
 what CI runs; ``"full"``: the paper-sized run, documented in ``docs/experiments.md``) and
 ``run(out, preset="small", seed=0, progress=False, **overrides) -> dict``, which writes PNG figures and
-``<name>.json`` (the numbers) into ``out`` and returns the numbers.
+``<name>.json`` (the numbers) into ``out`` and returns the numbers. A module may name another
+``DEFAULT_PRESET`` (``wiersma``: ``"full"``, the peer's protocol), what the command runs without ``--preset``.
 
 ``bayes-brdf experiment NAME [--preset small|full] [--set key=value] --out DIR`` runs one.
 

@@ -47,6 +47,9 @@ SCENE = SHARED_DATA / "peer_wiersma" / "experiments" / "scenes"
 PEER = {"roughness": -0.29, "metallic": 0.32}
 RADIUS, FOV = 3.5, 45.0
 
+#: what ``bayes-brdf experiment wiersma`` runs without ``--preset``: the peer's whole protocol (about 6 minutes)
+DEFAULT_PRESET = "full"
+
 PRESETS = {
     # what the test runs: 8 views of 24^2, 16^2 texels, a short run
     "small": {"views": 8, "subsets": "3,8", "fit_resolution": 24, "texels": 16, "spp": 16, "novel_views": 2,
@@ -118,8 +121,9 @@ def _spearman(a: torch.Tensor, b: torch.Tensor) -> float:
     return correlations(a, b)["spearman"]
 
 
-def run(out, preset: str = "small", seed: int = 0, progress: bool = False, **overrides) -> dict:
-    """Run the side-by-side (see the module docstring); returns and writes the numbers."""
+def run(out, preset: str = DEFAULT_PRESET, seed: int = 0, progress: bool = False, **overrides) -> dict:
+    """Run the side-by-side (see the module docstring; by default the full protocol); returns and writes the
+    numbers."""
     from ..inference import infer
     from ..models.metallic import SITES, metallic_roughness
     from ..observations import Observations

@@ -9,7 +9,7 @@ Example:
 from .bundle import load_observations, save_observations
 from .captures import describe, load_capture, resample_observations
 from .images import linear_to_srgb, read_image, resample, resample_mask, srgb_to_linear, write_exr, write_png
-from .maps_files import load_peer_svbrdf_panel, load_svbrdf, save_svbrdf
+from .maps_files import is_metallic_folder, load_metallic_maps, load_peer_svbrdf_panel, load_svbrdf, save_svbrdf
 from .transforms import load_transforms, save_transforms
 
 __all__ = [
@@ -17,5 +17,5 @@ __all__ = [
     "load_capture", "describe", "resample_observations",
     "save_observations", "load_observations",
     "save_transforms", "load_transforms",
-    "save_svbrdf", "load_svbrdf", "load_peer_svbrdf_panel",
+    "save_svbrdf", "load_svbrdf", "load_peer_svbrdf_panel", "load_metallic_maps", "is_metallic_folder",
 ]

@@ -130,6 +130,51 @@ def load_svbrdf(directory) -> SVBRDF:
     return SVBRDF(**out)
 
 
+#: the maps of a metallic-roughness material folder (:func:`load_metallic_maps`)
+METALLIC_MAP_NAMES = ("base_color", "metallic", "roughness")
+
+
+def is_metallic_folder(directory) -> bool:
+    """Whether ``directory`` holds a metallic-roughness material (``base_color`` and ``metallic`` maps)."""
+    d = Path(directory)
+    return d.is_dir() and all(any((d / f"{n}.{e}").is_file() for e in ("exr", "png")) for n in ("base_color", "metallic"))
+
+
+def load_metallic_maps(directory) -> dict:
+    """Read a metallic-roughness material folder (glTF / Substance / Blender maps): ``base_color.{exr,png}``
+    (PNG decoded with gamma 2.2), ``metallic`` and ``roughness`` (linear; channels averaged), as
+    ``{"base_color": [3, H, W], "metallic": [1, H, W], "roughness": [1, H, W]}`` float32 in our map convention
+    (row 0 of the file at ``v = 1``, as every map here); values outside [0, 1] are one line.
+
+    Example:
+        >>> t = load_metallic_maps("../shared/data/peer_wiersma/experiments/scenes/plane/textures")  # doctest: +SKIP
+        >>> t["metallic"].shape   # doctest: +SKIP
+        torch.Size([1, 64, 64])
+    """
+    d = Path(directory)
+    out = {}
+    for name in METALLIC_MAP_NAMES:
+        path = next((d / f"{name}.{e}" for e in ("exr", "png") if (d / f"{name}.{e}").is_file()), None)
+        if path is None:
+            raise InputError(f"{name} map not found", where=d / f"{name}.exr",
+                             fix=f"add {name}.exr (or .png) to the metallic-roughness folder")
+        raw, full = read_raw(path)
+        x = torch.from_numpy(np.ascontiguousarray(raw, dtype=np.float64) / (full or 1.0))
+        if x.dim() == 2:
+            x = x[..., None]
+        if name == "base_color":
+            x = x[..., :1].expand(*x.shape[:2], 3) if x.shape[-1] < 3 else x[..., :3]
+            if full is not None:
+                x = srgb_to_linear(x, _PREVIEW_GAMMA)
+        else:
+            x = x[..., :3].mean(-1, keepdim=True)
+        if not bool(torch.isfinite(x).all()) or float(x.min()) < 0 or float(x.max()) > 1:
+            raise InputError(f"{name} map has values outside [0, 1] (or not finite)", where=path,
+                             fix="a metallic-roughness map holds values in [0, 1]")
+        out[name] = x.movedim(-1, 0).contiguous().to(torch.float32)
+    return out
+
+
 def load_peer_svbrdf_panel(png_path) -> SVBRDF:
     """Read a DeepInverseRendering 4-panel map image as an :class:`SVBRDF` (``[C, H, W]`` float32).
 
