@@ -73,3 +73,15 @@ def shared_data() -> Path:
     if not SHARED_DATA.is_dir():
         pytest.skip("../shared/data not found: real captures live beside the repo, see README")
     return SHARED_DATA
+
+
+@pytest.fixture
+def one_thread():
+    """torch on one thread for the test (restored after): the environment transfer's many small torch
+    operations slow down about 17x when two busy-waiting OpenMP threads share the 2 cores with another job."""
+    import torch
+
+    n = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(n)

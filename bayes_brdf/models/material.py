@@ -111,11 +111,6 @@ class PerTexel(MaterialModel):
     def latent_sites(self) -> list[str]:
         return super().latent_sites() + (["normal_slope"] if self.normals == "infer" else [])
 
-    def _smooth(self, name: str):
-        s = self.smoothness
-        s = s.get(name) if isinstance(s, dict) else s
-        return P.from_dict(s)
-
     def sample_sites(self, data: ModelData) -> dict:
         R, c = self.resolution, (3 if self.albedo == "rgb" else 1)
         out = {"albedo": self._sample("albedo", (c, R, R), data),
@@ -125,10 +120,7 @@ class PerTexel(MaterialModel):
         if self.normals == "infer":
             loc = torch.zeros(2, R, R, dtype=data.dtype, device=data.device)
             out["normal_slope"] = pyro.sample("normal_slope", dist.Normal(loc, self.slope_std).to_event(3))
-        for name, x in out.items():
-            s = self._smooth(name)
-            if s is not None:
-                s.add(name, x)
+        P.add_smoothness(out, self.smoothness)
         return out
 
     def maps(self, values: dict) -> SVBRDF:

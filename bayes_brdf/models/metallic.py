@@ -88,10 +88,6 @@ class MetallicRoughness(ObservedModel):
         p = self.prior.get(name, P.uniform()) if isinstance(self.prior, dict) else self.prior
         return P.from_dict(p)
 
-    def _smooth(self, name: str):
-        s = self.smoothness
-        return P.from_dict(s.get(name) if isinstance(s, dict) else s)
-
     def sample_sites(self, data: ModelData) -> dict:
         R = self.resolution
         out = {}
@@ -99,10 +95,7 @@ class MetallicRoughness(ObservedModel):
             lo, hi = tuple(self.roughness_range) if name == "roughness" else (0.0, 1.0)
             d = self._prior(name).distribution((c, R, R), lo, hi, dtype=data.dtype, device=data.device)
             out[name] = pyro.sample(name, d)
-        for name, x in out.items():
-            s = self._smooth(name)
-            if s is not None:
-                s.add(name, x)
+        P.add_smoothness(out, self.smoothness)
         return out
 
     def maps(self, values: dict) -> SVBRDF:

@@ -173,6 +173,16 @@ class Smoothness:
         return {"kind": self.kind, "weight": self.weight}
 
 
+def add_smoothness(sites: dict, smoothness) -> None:
+    """The smoothness factors of a per-texel model's maps: for each ``{name: map}`` in ``sites``, the
+    :class:`Smoothness` that ``smoothness`` gives it (one for every map, or ``{name: Smoothness}``; ``None``:
+    none), added as ``<name>_smoothness``."""
+    for name, x in sites.items():
+        s = from_dict(smoothness.get(name) if isinstance(smoothness, dict) else smoothness)
+        if s is not None:
+            s.add(name, x)
+
+
 def tv(weight: float = 1.0) -> Smoothness:
     """Total-variation smoothness prior."""
     return Smoothness("tv", float(weight))

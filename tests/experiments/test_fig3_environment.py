@@ -17,14 +17,6 @@ from bayes_brdf.errors import InputError
 from bayes_brdf.experiments import common, get
 
 
-@pytest.fixture
-def one_thread():
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
-
-
 def test_environment_light_falls_back_to_the_studio_when_the_ballroom_is_missing(monkeypatch, tmp_path):
     monkeypatch.setattr(common, "BALLROOM", tmp_path / "no_such.exr")
     with pytest.warns(UserWarning, match="studio"):

@@ -18,14 +18,6 @@ from bayes_brdf.errors import InputError
 from bayes_brdf.experiments import common, get, preset
 
 
-@pytest.fixture
-def one_thread():
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
-
-
 def test_unknown_lighting_is_one_line(tmp_path):
     with pytest.raises(InputError, match="unknown lighting"):
         get("fig4").run(tmp_path, preset="mesh_env_small", lighting="sun")

@@ -59,4 +59,13 @@ def test_preset_tables_per_site():
                      "prior": {"roughness": {"kind": "gaussian", "mean": 0.1, "std": 0.05}},
                      "smoothness": {"albedo": {"kind": "tv", "weight": 3.0}}})
     assert m._prior("roughness").kind == "gaussian" and m._prior("albedo").kind == "uniform"
-    assert m._smooth("albedo").weight == 3.0 and m._smooth("roughness") is None
+    assert m.smoothness["albedo"].weight == 3.0 and "roughness" not in m.smoothness
+    # the factor is there for the albedo alone
+    import pyro.poutine as poutine
+    import torch
+    from bayes_brdf.models.data import ModelData
+    from bayes_brdf.observations import Observations
+    from bayes_brdf.render.views import collocated_views
+    d = ModelData.from_observations(Observations(collocated_views(1, 3.0, resolution=8), torch.zeros(1, 8, 8, 3)))
+    sites = poutine.trace(m.sample_sites).get_trace(d).nodes
+    assert "albedo_smoothness" in sites and "roughness_smoothness" not in sites
