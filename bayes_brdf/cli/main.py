@@ -22,7 +22,6 @@ Bad input prints ONE line ``bayes-brdf: error: ...`` and exits with code 2.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import logging
 import os
@@ -104,9 +103,8 @@ def _load_material(name: str, a):
         from ..models.metallic import metallic_to_svbrdf
         t = load_metallic_maps(name)
         a.principled = t
-        flat = torch.zeros_like(t["base_color"])
-        flat[2] = 1.0
-        return metallic_to_svbrdf(t["base_color"], t["metallic"], t["roughness"], flat)
+        return metallic_to_svbrdf(t["base_color"], t["metallic"], t["roughness"],
+                                  torch.zeros_like(t["base_color"])).with_flat_normals()
     if Path(name).is_dir():
         return load_svbrdf(name)
     if name not in MATERIALS:
@@ -256,10 +254,9 @@ def cmd_render(a) -> int:
     maps = _load_material(a.material, a).to(dtype=torch.float32, device=a.device)
     flattened = False
     if any(v.environment is not None for v in views):      # the environment's transfer follows the geometry only
-        flat = torch.zeros_like(maps.normal)
-        flat[2] = 1.0
-        flattened = not torch.equal(maps.normal, flat)
-        maps = dataclasses.replace(maps, normal=flat)
+        flat = maps.with_flat_normals()
+        flattened = not torch.equal(maps.normal, flat.normal)
+        maps = flat
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
     if len({tuple(v.resolution) for v in views}) > 1:

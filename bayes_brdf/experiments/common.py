@@ -195,13 +195,4 @@ def environment_light(spec: str = "ballroom", scale: float = 1.0, rotate: float 
     return env, f"{env.name} {w}x{h}, scale {scale:g}, rotate {rotate:g} deg{note}"
 
 
-def flat_normals(maps):
-    """``maps`` with a flat normal map (an environment light's transfer is for the surface's own normals)."""
-    from dataclasses import replace
-
-    flat = torch.zeros_like(maps.normal)
-    flat[2] = 1.0
-    return replace(maps, normal=flat)
-
-
 __all__ = ["SURFACE", "synthetic", "fit", "write_json", "render"]

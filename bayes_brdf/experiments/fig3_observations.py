@@ -40,7 +40,7 @@ import time
 import numpy as np
 import torch
 
-from .common import (FIGURE_SAMPLER, PAPER_SIGMA, SURFACE, environment_light, flat_normals, prepare, say, synthetic,
+from .common import (FIGURE_SAMPLER, PAPER_SIGMA, SURFACE, environment_light, prepare, say, synthetic,
                      write_json)
 from .fig2_particles import _ints, start
 from ..errors import InputError
@@ -83,7 +83,7 @@ def observations(config: str, material: str, resolution: int, count: int, seed: 
     if config == "environment":
         if env is None:
             raise InputError("the environment configuration needs its environment light", fix="pass env=...")
-        truth = flat_normals(truth)
+        truth = truth.with_flat_normals()
         vs = [View(v.camera, (env,), name=f"env_{v.name}")
               for v in collocated_views(count, RADIUS, method="sobol", camera="rectified", resolution=resolution,
                                         power=POWER, max_zenith=MAX_ZENITH, seed=seed)]

@@ -51,7 +51,7 @@ import time
 import numpy as np
 import torch
 
-from .common import (PAPER_SIGMA, SURFACE, environment_light, flat_normals, is_mesh, mesh_rig, prepare, sampler_of,
+from .common import (PAPER_SIGMA, SURFACE, environment_light, is_mesh, mesh_rig, prepare, sampler_of,
                      scene_surface, synthetic, write_json)
 from ..inference import infer
 from ..models.data import ModelData
@@ -251,7 +251,7 @@ def mesh_problem(cfg: dict, mesh, seed: int, env=None):
     R = int(cfg["resolution"])
     truth = make_material(cfg["material"], R, seed=seed).to(torch.float32)
     if env is not None:
-        truth = flat_normals(truth)
+        truth = truth.with_flat_normals()
     dist, kw = mesh_rig(mesh, int(cfg["image_resolution"]) or 2 * R)
     vs = _lit(collocated_views(int(cfg["views"]), dist, method="sobol", max_zenith=MESH_ZENITH, seed=seed, **kw), env)
     obs = SyntheticCapture(truth, mesh, noise_sigma=float(cfg["noise_sigma"]), seed=seed)(vs)
@@ -268,7 +268,7 @@ def plane_problem(cfg: dict, seed: int, env=None):
                            noise_sigma=float(cfg["noise_sigma"]))
     if env is None:
         return truth, obs
-    truth = flat_normals(truth)
+    truth = truth.with_flat_normals()
     return truth, SyntheticCapture(truth, SURFACE, noise_sigma=float(cfg["noise_sigma"]), seed=seed)(
         _lit(obs.views, env))
 

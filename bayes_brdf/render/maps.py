@@ -106,6 +106,19 @@ class SVBRDF:
         """The maps of particle ``i`` (shared maps are returned as they are)."""
         return replace(self, **{k: (t[i] if t.dim() == 4 else t) for k, t in self.items()})
 
+    def with_flat_normals(self) -> "SVBRDF":
+        """These maps with a flat normal map (``+z`` everywhere, the normal map's own size): what an environment
+        light's precomputed transfer shades (it is for the surface's own normals).
+
+        Example:
+            >>> m = SVBRDF.constant(normal=(0.3, 0.0, 1.0)).with_flat_normals()
+            >>> m.normal.flatten().tolist()
+            [0.0, 0.0, 1.0]
+        """
+        flat = torch.zeros_like(self.normal)
+        flat[..., 2, :, :] = 1.0
+        return replace(self, normal=flat)
+
     def channels_last(self, name: str) -> Tensor:
         """Map ``name`` as ``[..., H, W, C]`` (for saving and plotting)."""
         return getattr(self, name).movedim(-3, -1)
