@@ -307,15 +307,16 @@ def _texture_figure(path, truth, est, post, seen, name: str):
 
 
 def _describe(view: View) -> str:
-    """A view's lights in words: its point lights and its environment (name, scale, the azimuth of its ``u = 0``)."""
-    parts = ["flash" if tuple(l.position) == tuple(view.camera.position) else
-             f"point light at ({', '.join(f'{x:.2f}' for x in l.position)})" for l in view.point_lights]
+    """A view's lights in words (:func:`bayes_brdf.report.lighting`), and for an environment the azimuth its
+    ``u = 0`` faces: the turned view's environment differs from the photos' by that alone."""
+    from ..report import lighting
+
     env = view.environment
-    if env is not None:
-        r = env.to_world
-        az = math.degrees(math.atan2(-r[1][2], -r[0][2]))          # where the map's u = 0 (local -z) points
-        parts.append(f"environment {env.name or 'map'} (scale {env.scale:g}, u = 0 at azimuth {az % 360:.0f} deg)")
-    return " + ".join(parts)
+    if env is None:
+        return lighting(view)
+    r = env.to_world
+    az = math.degrees(math.atan2(-r[1][2], -r[0][2]))          # where the map's u = 0 (local -z) points
+    return f"{lighting(view)}, u = 0 at azimuth {az % 360:.0f} deg"
 
 
 # ------------------------------------------------------------------ the experiment
