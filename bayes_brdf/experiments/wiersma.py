@@ -83,22 +83,21 @@ def scene():
 
 
 def cameras(count: int, resolution: int, env, offset: float = 0.0):
-    """``count`` views on the Fibonacci upper hemisphere of radius 3.5 about the origin, FOV 45 degrees, lit by
-    ``env`` alone; ``offset`` turns the spiral by that fraction of its azimuth step (a second, novel set)."""
+    """``count`` views on the Fibonacci upper hemisphere of radius 3.5 about the origin
+    (:func:`~bayes_brdf.render.views.hemisphere_directions`, its spiral turned the other way round, as theirs
+    turns), FOV 45 degrees, lit by ``env`` alone; ``offset`` turns the spiral by that fraction of its azimuth
+    step (a second, novel set)."""
     from ..render.cameras import PerspectiveCamera
-    from ..render.views import View
+    from ..render.views import View, hemisphere_directions
 
-    golden = math.pi * (3 - math.sqrt(5))
-    out = []
-    for i in range(count):
-        z = 1 - (i + 0.5) / count                      # upper hemisphere: heights in (0, 1)
-        r = math.sqrt(max(0.0, 1 - z * z))
-        phi = golden * (i + offset)
-        pos = (RADIUS * r * math.cos(phi), RADIUS * r * math.sin(phi), RADIUS * z)
-        cam = PerspectiveCamera(pos, target=(0.0, 0.0, 0.0), up=(0.0, 0.0, 1.0), fov=FOV,
-                                resolution=(resolution, resolution))
-        out.append(View(cam, (env,), name=f"cam{i:03d}" if not offset else f"novel{i:02d}"))
-    return out
+    d = hemisphere_directions(count, "fibonacci")
+    a = math.pi * (3 - math.sqrt(5)) * offset                  # the golden angle times offset
+    c, s = math.cos(a), math.sin(a)
+    x, y = d[:, 0], -d[:, 1]                                    # mirrored: azimuths + i * golden angle
+    pos = RADIUS * torch.stack([c * x - s * y, s * x + c * y, d[:, 2]], 1)
+    return [View(PerspectiveCamera(tuple(p.tolist()), target=(0.0, 0.0, 0.0), up=(0.0, 0.0, 1.0), fov=FOV,
+                                   resolution=(resolution, resolution)), (env,),
+                 name=f"cam{i:03d}" if not offset else f"novel{i:02d}") for i, p in enumerate(pos)]
 
 
 def subset_indices(total: int, k: int) -> list[int]:
