@@ -474,12 +474,33 @@ PRINCIPLED_SCENES = MeshSceneCache(lambda mesh, variant: ReferenceScene(mesh, va
 PRINCIPLED_MAPS = ("base_color", "metallic", "roughness")
 
 
-def _check_batches(batches, spp) -> None:
+def _check_request(views, camera: str, integrator: str, spp, max_depth, batches, variant) -> list:
+    """The views of a Mitsuba render as a list, after one-line errors for a request that cannot be rendered:
+    the camera, the integrator and its ``max_depth``, ``spp`` and ``batches``, the variant (a JIT RGB one: the
+    reference BSDF is a Python BSDF), no views or views of different resolutions."""
+    if camera not in CAMERAS:
+        raise InputError(f"unknown reference camera {camera!r}", fix=f"use one of {', '.join(CAMERAS)}")
+    if variant is not None and not (variant.startswith(("llvm_", "cuda_")) and variant.endswith("_rgb")):
+        raise InputError(f"the reference needs a JIT RGB Mitsuba variant (a Python BSDF), got {variant!r}",
+                         fix="use llvm_ad_rgb or cuda_ad_rgb")
+    if int(spp) < 1:
+        raise InputError(f"spp must be >= 1, got {spp}")
+    if integrator not in INTEGRATORS:
+        raise InputError(f"unknown integrator {integrator!r}", fix=f"use one of {', '.join(INTEGRATORS)}")
+    if integrator == "path" and (isinstance(max_depth, bool) or int(max_depth) != max_depth or max_depth < 2):
+        raise InputError(f"max_depth must be an integer >= 2 (2: direct light only), got {max_depth!r}")
     if isinstance(batches, bool) or not isinstance(batches, int) or batches < 1:
         raise InputError(f"batches must be a positive integer, got {batches!r}")
     if batches > 1 and (int(spp) % batches or int(spp) < 2 * batches):
         raise InputError(f"spp {spp} must be a multiple of batches {batches}, at least twice it",
                          fix=f"use spp = {2 * batches * max(1, -(-int(spp) // (2 * batches)))}")
+    views = list(views)
+    if not views:
+        raise InputError("no views given", fix="pass at least one View")
+    res = {tuple(v.resolution) for v in views}
+    if len(res) != 1:
+        raise InputError(f"views have different resolutions {sorted(res)}", fix="render them in separate calls")
+    return views
 
 
 def _is_environment(light) -> bool:
@@ -535,25 +556,8 @@ def render_reference(maps: SVBRDF, views, mesh, *, camera: str = "rays", spp: in
         >>> render_reference(SVBRDF.constant(), views, Mesh.sphere()).shape   # doctest: +SKIP
         torch.Size([2, 32, 32, 3])
     """
-    if camera not in CAMERAS:
-        raise InputError(f"unknown reference camera {camera!r}", fix=f"use one of {', '.join(CAMERAS)}")
-    if variant is not None and not (variant.startswith(("llvm_", "cuda_")) and variant.endswith("_rgb")):
-        raise InputError(f"the reference needs a JIT RGB Mitsuba variant (a Python BSDF), got {variant!r}",
-                         fix="use llvm_ad_rgb or cuda_ad_rgb")
-    if int(spp) < 1:
-        raise InputError(f"spp must be >= 1, got {spp}")
-    if integrator not in INTEGRATORS:
-        raise InputError(f"unknown integrator {integrator!r}", fix=f"use one of {', '.join(INTEGRATORS)}")
-    if integrator == "path" and (isinstance(max_depth, bool) or int(max_depth) != max_depth or max_depth < 2):
-        raise InputError(f"max_depth must be an integer >= 2 (2: direct light only), got {max_depth!r}")
-    _check_batches(batches, spp)
-    views = list(views)
-    if not views:
-        raise InputError("no views given", fix="pass at least one View")
+    views = _check_request(views, camera, integrator, spp, max_depth, batches, variant)
     maps = _check(maps, views)
-    res = {tuple(v.resolution) for v in views}
-    if len(res) != 1:
-        raise InputError(f"views have different resolutions {sorted(res)}", fix="render them in separate calls")
     with _LOCK, mitsuba_variant(variant) as mi:
         rs = SCENES.get(mesh, mi.variant())
         rs.set_maps(maps, eps=eps, ks_factor=ks_factor)
@@ -590,10 +594,8 @@ def render_principled(textures: dict, views, mesh, *, camera: str = "sensor", sp
     ``max_depth``, one pass per light, view ``k`` seeded ``seed + 104729 k``). Where ``principled`` and our
     :mod:`~bayes_brdf.models.metallic` model differ: docs/models.md.
     """
-    if camera not in CAMERAS:
-        raise InputError(f"unknown reference camera {camera!r}", fix=f"use one of {', '.join(CAMERAS)}")
-    if integrator not in INTEGRATORS:
-        raise InputError(f"unknown integrator {integrator!r}", fix=f"use one of {', '.join(INTEGRATORS)}")
+    views = _check_request(views, camera, integrator, spp, max_depth, batches, variant)
+    _check(SVBRDF.constant(), views)
     missing = [k for k in PRINCIPLED_MAPS if k not in textures]
     if missing:
         raise InputError(f"principled textures lack {missing}", fix=f"give {', '.join(PRINCIPLED_MAPS)}")
@@ -601,11 +603,6 @@ def render_principled(textures: dict, views, mesh, *, camera: str = "sensor", sp
         t = torch.as_tensor(textures[name])
         if t.dim() != 3 or t.shape[0] != c:
             raise InputError(f"principled texture {name} has shape {tuple(t.shape)}, expected [{c}, H, W]")
-    _check_batches(batches, spp)
-    views = list(views)
-    if not views:
-        raise InputError("no views given", fix="pass at least one View")
-    _check(SVBRDF.constant(), views)
     with _LOCK, mitsuba_variant(variant) as mi:
         rs = PRINCIPLED_SCENES.get(mesh, mi.variant())
         rs.set_principled({k: torch.as_tensor(v) for k, v in textures.items()})
