@@ -249,6 +249,29 @@ def test_irradiance_of_a_real_map_matches_quadrature(shared_data):
     assert torch.allclose(irradiance(env, n), exact, rtol=2e-3)
 
 
+def _random_maps(n, R, gen, dtype):
+    """``(kd, r, ks, flat normals)`` of ``n`` particles at ``R^2``: roughness past both ends of the tables."""
+    flat = torch.tensor([0, 0, 1.0], dtype=dtype)[:, None, None].expand(3, R, R)
+    kd = torch.rand(n, 3, R, R, generator=gen, dtype=dtype)
+    r = 0.01 + 1.1 * torch.rand(n, 1, R, R, generator=gen, dtype=dtype)
+    ks = 0.04 + 0.3 * torch.rand(n, 3, R, R, generator=gen, dtype=dtype)
+    return kd, r, ks, flat
+
+
+def _assert_loss_as_eager(kd, r, ks, flat, g, y, tol, label=None):
+    """The L1 loss of the default backend and its gradients equal the eager reference's."""
+    out = []
+    for backend in ("eager", "auto"):
+        ps = [t.clone().requires_grad_() for t in (kd, r, ks)]
+        loss = shade_loss(SVBRDF(*ps, flat), g, y, kind="l1", backend=backend)
+        loss.sum().backward()
+        out.append((loss.detach(), [p.grad for p in ps]))
+    (la, ga), (lb, gb) = out
+    assert torch.allclose(la, lb, rtol=tol), (label, la, lb)
+    for a, b in zip(ga, gb):
+        assert float((a - b).abs().max() / a.abs().max()) < 10 * tol, label
+
+
 @pytest.mark.needs_llvm
 @pytest.mark.needs_native(kernel="texels")
 @pytest.mark.parametrize("dtype, tol", [(torch.float64, 1e-12), (torch.float32, 1e-4)])
@@ -260,25 +283,10 @@ def test_native_texel_kernel_shades_the_environment_as_the_reference(dtype, tol)
     env = EnvironmentLight(_random_map(16, 32), to_world=z_up(10.0))
     views = [View(v.camera, v.lights + (env,), name=v.name) for v in check_views(mesh, "block_on_plane", 24)]
     g = GBuffer.build(views, mesh, dtype=dtype)
-    R, n = 48, 3
-    gen = torch.Generator().manual_seed(0)
-    flat = torch.tensor([0, 0, 1.0], dtype=dtype)[:, None, None].expand(3, R, R)
-    kd = torch.rand(n, 3, R, R, generator=gen, dtype=dtype)
-    r = 0.01 + 1.1 * torch.rand(n, 1, R, R, generator=gen, dtype=dtype)       # past both ends of the tables
-    ks = 0.04 + 0.3 * torch.rand(n, 3, R, R, generator=gen, dtype=dtype)
+    kd, r, ks, flat = _random_maps(3, 48, torch.Generator().manual_seed(0), dtype)
     ref = shade(SVBRDF(kd, r, ks, flat), g, backend="eager")
     assert float((shade(SVBRDF(kd, r, ks, flat), g) - ref).abs().max() / ref.abs().max()) < tol
-    y = ref[0] * 1.05
-    out = []
-    for backend in ("eager", "auto"):
-        ps = [t.clone().requires_grad_() for t in (kd, r, ks)]
-        loss = shade_loss(SVBRDF(*ps, flat), g, y, kind="l1", backend=backend)
-        loss.sum().backward()
-        out.append((loss.detach(), [p.grad for p in ps]))
-    (la, ga), (lb, gb) = out
-    assert torch.allclose(la, lb, rtol=tol)
-    for a, b in zip(ga, gb):
-        assert float((a - b).abs().max() / a.abs().max()) < 10 * tol
+    _assert_loss_as_eager(kd, r, ks, flat, g, ref[0] * 1.05, tol)
 
 
 @pytest.mark.needs_native(kernel="texels")
@@ -300,21 +308,7 @@ def test_rectified_views_under_an_environment_take_the_texel_kernel(dtype, tol, 
     gen = torch.Generator().manual_seed(1)
     y = 0.3 * torch.rand(4, 12, 12, 3, generator=gen, dtype=dtype)
     for R in (12, 9):
-        n = 3
-        flat = torch.tensor([0, 0, 1.0], dtype=dtype)[:, None, None].expand(3, R, R)
-        kd = torch.rand(n, 3, R, R, generator=gen, dtype=dtype)
-        r = 0.01 + 1.1 * torch.rand(n, 1, R, R, generator=gen, dtype=dtype)
-        ks = 0.04 + 0.3 * torch.rand(n, 3, R, R, generator=gen, dtype=dtype)
-        out = []
-        for backend in ("eager", "auto"):
-            ps = [t.clone().requires_grad_() for t in (kd, r, ks)]
-            loss = shade_loss(SVBRDF(*ps, flat), g, y, kind="l1", backend=backend)
-            loss.sum().backward()
-            out.append((loss.detach(), [p.grad for p in ps]))
-        (la, ga), (lb, gb) = out
-        assert torch.allclose(la, lb, rtol=tol), (R, la, lb)
-        for a, b in zip(ga, gb):
-            assert float((a - b).abs().max() / a.abs().max()) < 10 * tol, R
+        _assert_loss_as_eager(*_random_maps(3, R, gen, dtype), g, y, tol, R)
     assert calls == [True, True]           # the auto losses, each with the environment's terms
     c, index = compacted_taps(g)
     assert c.texel is None and c.resolution == (1, 4 * 144) and sorted(index.tolist()) == list(range(4 * 144))
