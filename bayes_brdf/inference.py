@@ -21,6 +21,7 @@ from .render.scene import surface_state
 from .samplers import make_sampler
 from .samplers.diagnostics import drawn
 from .samplers.driver import run
+from .noise_estimate import with_render_noise
 
 
 #: ``steps="auto"`` runs at most this many times the preset's steps
@@ -158,6 +159,7 @@ def infer(model: "Callable | str | dict", observations: "Observations | ModelDat
     smp, cfg = make_sampler(sampler, params=params,
                             run={k: v for k, v in (("particles", particles), ("steps", None if auto else steps))
                                  if v is not None})
+    data = with_render_noise(model, data, estimated=signal_noise(model, smp))
     pot = Potential(model, (data,))
     if progress is None:
         progress = sys.stderr.isatty()

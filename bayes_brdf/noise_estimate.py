@@ -29,6 +29,41 @@ from .models.noise import NoiseLevel, fit_noise_level, render_noise
 from .render.shade import shade
 
 
+def with_render_noise(model, data: ModelData, *, estimated: bool) -> ModelData:
+    """``data`` with its photos' own render variance (``Observations.variance``) in the per-pixel noise scales,
+    where the run will not put it there itself: ``estimated`` (a run that fits the noise level after its burn-in,
+    :func:`estimate_noise`) does. With a fixed ``sigma`` the scale of a pixel is exactly
+    ``sqrt(sigma^2 + tau^2)`` (:func:`~bayes_brdf.models.noise.render_noise`): relative scales
+    ``sqrt(1 + tau^2 / sigma^2)``. With ``sigma = "auto"`` and one noise scale (``pixel_noise = "constant"``)
+    the scale is not known before sampling: the variance is left out, with a warning that says so.
+
+    Example:
+        >>> import bayes_brdf as bb
+        >>> from bayes_brdf.render import PlanarSample, collocated_views
+        >>> vs = collocated_views(1, 3.0, camera="rectified", resolution=2)
+        >>> obs = bb.Observations(vs, torch.full((1, 2, 2, 3), 0.5), PlanarSample(2.0),
+        ...                       variance=torch.full((1, 2, 2, 3), 3e-4))
+        >>> d = with_render_noise(bb.models.homogeneous(sigma=0.01, likelihood="gaussian"),
+        ...                       ModelData.from_observations(obs), estimated=False)
+        >>> round(float(d.noise[0, 0, 0]), 4)            # sqrt(1 + 3e-4 / 1e-4)
+        2.0
+    """
+    import warnings
+
+    var = getattr(data.observations, "variance", None)
+    if var is None or estimated or tuple(var.shape) != tuple(data.images.shape):
+        return data
+    sigma = getattr(model, "sigma", None)
+    if not isinstance(sigma, (int, float)) or isinstance(sigma, bool):
+        warnings.warn("the photos carry their renderer's own variance, which sigma='auto' with one noise scale "
+                      "(pixel_noise='constant') cannot use: it is left out; use pixel_noise='signal' (the default) "
+                      "or a fixed sigma", stacklevel=3)
+        return data
+    tau2 = render_noise(var.to(device=data.device, dtype=torch.float64), getattr(model, "likelihood", "laplace"))
+    rel = (1 + tau2 / float(sigma) ** 2).sqrt().to(data.dtype)
+    return data.with_noise(torch.where(data.weight > 0, rel, torch.ones_like(rel)))
+
+
 class NoiseEstimate(NamedTuple):
     """What :func:`estimate_noise` found: the data to sample on, the noise level, the views' gains (or ``None``)."""
 

@@ -125,3 +125,30 @@ def test_the_posterior_records_the_render_noise_and_guidance_adds_it():
     plain = bb.infer(bb.models.homogeneous(albedo="gray"), dataclasses.replace(obs, variance=None), "spos",
                      steps=40, progress=False)
     assert plain.render_noise is None and observation_noise_var(plain) == pytest.approx(2 * plain.noise_sigma ** 2)
+
+
+def test_a_fixed_sigma_adds_the_render_noise_up_front_and_one_scale_says_it_cannot():
+    """A fixed sigma: the pixel's scale is sqrt(sigma^2 + tau^2) from the start (the closed form again); sigma
+    'auto' with one noise scale cannot know sigma before sampling: the variance is left out, with a warning."""
+    import warnings
+
+    from bayes_brdf.noise_estimate import with_render_noise
+
+    obs, clean = _capture(resolution=8, views=2)
+    model = bb.models.homogeneous(albedo="gray", likelihood="gaussian", sigma=S)
+    d = with_render_noise(model, ModelData.from_observations(obs, dtype=torch.float64), estimated=False)
+    maps = model.maps({"albedo": torch.full((1, 1), 0.5), "roughness": torch.full((1, 1), 0.3)})
+    lp = float(RenderedImages(maps, d, sigma=S, kind="gaussian").log_prob(d.images))
+    var = S * S + obs.variance.double().mean(-1, keepdim=True).expand_as(clean)
+    w = d.weight[..., None].expand_as(clean) > 0
+    want = float((-0.5 * (obs.images.double() - clean) ** 2 / var - 0.5 * torch.log(2 * math.pi * var))[w].sum())
+    assert lp == pytest.approx(want, rel=1e-6)
+    # the run that estimates its noise level after the burn-in puts it there itself
+    assert with_render_noise(model, d, estimated=True) is d
+    one = bb.models.homogeneous(albedo="gray", pixel_noise="constant")
+    with pytest.warns(UserWarning, match="left out"):
+        out = with_render_noise(one, ModelData.from_observations(obs), estimated=False)
+    assert out.noise is None
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", UserWarning)
+        with_render_noise(one, ModelData.from_observations(dataclasses.replace(obs, variance=None)), estimated=False)
