@@ -162,9 +162,9 @@ class Posterior:
 
     def map_std(self) -> dict[str, Tensor]:
         """``{map: std over the particles}`` for the maps the sites decide (see :meth:`std`)."""
-        out = {}
         if callable(getattr(self.model, "parameter_maps", None)):
             return {k: self._std(v) for k, v in self.model.parameter_maps(self.particles).items()}
+        out = {}
         for name in MAPS:
             if name in self.particles:
                 out[name] = self._std(self.particles[name])

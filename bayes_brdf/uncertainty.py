@@ -137,7 +137,8 @@ def predictive_cdf(post, views, images: Tensor, surface: PlanarSample | None = N
         obs = y[s:e].to(r).permute(0, 3, 1, 2)[None]
         extra = None
         if variance is not None:
-            extra = torch.as_tensor(variance)[s:e].to(r).permute(0, 3, 1, 2)[None] / (2.0 if kind == "laplace" else 1.0)
+            from .models.noise import render_noise
+            extra = render_noise(torch.as_tensor(variance)[s:e].to(r), kind, per_channel=True).permute(0, 3, 1, 2)[None]
         F = torch.zeros_like(r[0])
         for lg in nodes:
             rg = r * math.exp(lg) if lg else r

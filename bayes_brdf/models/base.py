@@ -8,6 +8,9 @@ function (see docs/models.md, "The model protocol"):
   (a particle dimension in, a particle dimension out). With it, ``Posterior.std``,
   ``maps``, Eq. 11 and guidance work in *map space*: for the per-texel model a site
   is a map, for the latent decoder the maps are decoded from W+ and noise.
+* ``parameter_maps(values) -> {name: map}`` -- where the maps a user reads are not the renderer's
+  (``metallic_roughness``: base colour, metallic, roughness rather than ``kd`` and ``F0``): what
+  ``Posterior.std()`` summarises.
 * ``latent_sites() -> list[str]`` -- the names of its latent sites.
 * ``noise_sigma(data, values) -> [n]`` and ``sigma`` -- its noise level: a fixed number,
   or ``"auto"`` when it is inferred (then the posterior records the inferred value).

@@ -75,10 +75,10 @@ def check_pixel_noise(kind) -> None:
                              "\"constant\": one scale for every pixel")
 
 
-def render_noise(variance: Tensor, kind: str = "laplace") -> Tensor:
+def render_noise(variance: Tensor, kind: str = "laplace", *, per_channel: bool = False) -> Tensor:
     """A renderer's own variance of a value (``[..., 3]``: a Monte Carlo render's, :attr:`Observations.variance`)
-    as a squared noise scale per pixel ``[...]``: the mean over channels, over 2 for a Laplace scale (a Laplace
-    of scale ``s`` has variance ``2 s^2``), as it is for a Gaussian std. The noise of a photo that a renderer
+    as a squared noise scale per pixel ``[...]`` (the mean over channels; ``per_channel``: ``[..., 3]``), over 2
+    for a Laplace scale (a Laplace of scale ``s`` has variance ``2 s^2``), as it is for a Gaussian std. The noise of a photo that a renderer
     made is its photo noise plus this: ``s_total^2 = s(y)^2 + render_noise`` (the Laplace part matched by its
     variance).
 
@@ -86,7 +86,7 @@ def render_noise(variance: Tensor, kind: str = "laplace") -> Tensor:
         >>> [round(x, 6) for x in render_noise(torch.tensor([[2e-4, 4e-4, 6e-4]])).tolist()]
         [0.0002]
     """
-    v = variance.mean(-1)
+    v = variance if per_channel else variance.mean(-1)
     return v / 2.0 if kind == "laplace" else v
 
 
