@@ -2,7 +2,7 @@
 # Installs everything bayes-brdf needs into ./.venv (idempotent; re-run is cheap).
 #  - the system LLVM 19 runtime that Mitsuba's CPU variant (llvm_ad_rgb) needs
 #  - torch==2.13.0 (pinned: never let pip choose a torch build)
-#  - the package itself, editable, with all extras (mitsuba, docs, dev)
+#  - the package itself, editable, with all extras (mitsuba, docs, dev, arviz, ray)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 PY=${PYTHON:-python3}

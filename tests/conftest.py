@@ -85,3 +85,16 @@ def one_thread():
     torch.set_num_threads(1)
     yield
     torch.set_num_threads(n)
+
+
+@pytest.fixture(scope="session")
+def ray_local():
+    """A local Ray of 2 CPUs, started once per test session (shut down at its end); skips without Ray.
+    :class:`~bayes_brdf.executor.RayExecutor` uses it as it is (and leaves it running)."""
+    ray = pytest.importorskip("ray", reason="Ray is not installed: pip install 'bayes-brdf[ray]'")
+    started = not ray.is_initialized()
+    if started:
+        ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False, configure_logging=False)
+    yield ray
+    if started:
+        ray.shutdown()
