@@ -1,6 +1,7 @@
 """``bayes-brdf compare``: the paper's Table 1 (samplers on a 2-D posterior with an exact answer)."""
 from __future__ import annotations
 
+from ..executor import add_ray_args
 from .common import float_list, key_value, positive_float, positive_int
 
 
@@ -8,7 +9,8 @@ def add_parser(sub):
     c = sub.add_parser("compare", help="the sampler comparison table (the paper's Table 1)",
                        description="Sample a 2-D posterior (gray albedo, roughness; one pixel under one collocated "
                                    "flash, or under a known environment) with each sampler, compare with dense quadrature, print a markdown table "
-                                   "of MSE of the mean / variance and seconds; --json writes the numbers.")
+                                   "of MSE of the mean / variance and seconds; --json writes the numbers. --ray runs the samplers' runs as "
+                                   "tasks of a local Ray (--ray-address: a cluster), with the same numbers.")
     c.add_argument("--angle", type=float, default=0.0, help="zenith of camera+flash in degrees (default: %(default)s)")
     c.add_argument("--albedo", type=float, default=0.5, help="true albedo of the observed pixel (default: %(default)s)")
     c.add_argument("--roughness", type=float, default=0.5, help="true roughness (default: %(default)s)")
@@ -33,6 +35,7 @@ def add_parser(sub):
     c.add_argument("--grid", type=positive_int, default=1000, help="quadrature cells per axis (default: %(default)s)")
     c.add_argument("--seed", type=int, default=0, help="base seed (default: %(default)s)")
     c.add_argument("--json", help="also write the numbers to this JSON file")
+    add_ray_args(c)
     c.set_defaults(func=run)
 
 
@@ -64,8 +67,10 @@ def run(a) -> int:
     from ..experiments.table1 import environment_of
     environment_of(setup)                                  # a bad map fails here, before any sampling
     names = [s for s in a.samplers.split(",") if s]
-    table = compare(setup, names, runs=a.runs, particles=a.particles, steps=a.steps, seed=a.seed, params=params,
-                    progress=False)
+    from ..executor import executor_of_args
+    with executor_of_args(a) as ex:                        # the samplers' runs: in this process, or Ray tasks
+        table = compare(setup, names, runs=a.runs, particles=a.particles, steps=a.steps, seed=a.seed,
+                        params=params, progress=False, executor=ex)
     print(markdown(table))
     if a.json:
         rows = {k: v for k, v in table.items() if not k.startswith("_")}

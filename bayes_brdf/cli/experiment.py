@@ -1,11 +1,14 @@
 """``bayes-brdf experiment NAME``: reproduce one of the paper's figures on synthetic data."""
 from __future__ import annotations
 
+import inspect
 import json
 import sys
 import time
 from pathlib import Path
 
+from ..errors import InputError
+from ..executor import add_ray_args, executor_of_args
 from .common import key_value
 
 
@@ -28,6 +31,7 @@ def add_parser(sub):
     e.add_argument("--out", default=None, help="output folder (default: out/experiments/NAME)")
     e.add_argument("--json", action="store_true",
                    help="also print the summary numbers as JSON on stdout (they are always in the folder's JSON)")
+    add_ray_args(e)
     e.set_defaults(func=run)
 
 
@@ -47,8 +51,15 @@ def run(a) -> int:
     a.preset = a.preset or getattr(m, "DEFAULT_PRESET", "small")
     cfg = preset(m, a.preset, dict(a.set))
     out = check_folder(a.out or f"out/experiments/{a.name}")
+    fans_out = "executor" in inspect.signature(m.run).parameters      # its seeds are independent pieces
+    if not fans_out and (a.ray or a.ray_address or a.ray_cpus is not None):
+        fan = [n for n in sorted(EXPERIMENTS) if "executor" in inspect.signature(get(n).run).parameters]
+        raise InputError(f"experiment {a.name} runs in one process, --ray does not apply to it",
+                         fix=f"leave it out (the experiments that fan out: {', '.join(fan)})")
     t = time.perf_counter()
-    res = m.run(out, preset=a.preset, seed=a.seed, progress=sys.stderr.isatty(), **dict(a.set))
+    with executor_of_args(a) as ex:              # the experiment's seeds: in this process, or Ray tasks
+        res = m.run(out, preset=a.preset, seed=a.seed, progress=sys.stderr.isatty(), **dict(a.set),
+                    **({"executor": ex} if fans_out else {}))
     secs = time.perf_counter() - t
     files = sorted(p.name for p in out.iterdir() if p.suffix in (".png", ".json"))
     print(f"{a.name} ({a.preset}, {', '.join(f'{k}={v}' for k, v in cfg.items())}) in {secs:.0f} s -> {out}/: "

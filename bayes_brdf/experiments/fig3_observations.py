@@ -44,6 +44,7 @@ from .common import (FIGURE_SAMPLER, PAPER_SIGMA, SURFACE, environment_light, pr
                      write_json)
 from .fig2_particles import _ints, start
 from ..errors import InputError
+from ..executor import using
 from ..inference import infer
 from ..models.material import per_texel
 from ..plots import line_plot, map_panel, panel_grid
@@ -108,9 +109,38 @@ def _spearman(a: torch.Tensor, b: torch.Tensor) -> float:
     return float(spearmanr(a, b)[0]) if np.ptp(a) > 0 and np.ptp(b) > 0 else float("nan")
 
 
-def run(out, preset: str = "small", seed: int = 0, progress: bool = False, **overrides) -> dict:
+def _fit(job: tuple, shared: tuple) -> tuple:
+    """One run of the figure: configuration ``config`` with ``k`` observations ``obs`` of ``truth``, sampler seed
+    ``s``: ``(MAP roughness, its L1 error, std (Eq. 9), the run's numbers)``."""
+    config, k, s, truth, obs = job
+    cfg, progress = shared
+    R, far = int(cfg["resolution"]), float(cfg["far"])
+    model = per_texel(R, specular=truth.specular, normals=truth.normal, sigma=PAPER_SIGMA)
+    tr = truth.roughness[0]
+    t = time.perf_counter()
+    post = infer(model, obs, FIGURE_SAMPLER, map_steps=0, seed=s, steps=int(cfg["steps"]),
+                 params={"step_size": float(cfg["step_size"])}, particles=int(cfg["particles"]),
+                 z0=start(model, obs, int(cfg["particles"]), s, float(cfg["init_margin"])), progress=progress)
+    parts = post.particles["roughness"][:, 0]                       # [n, R, R]
+    est = post.map()["roughness"][0]
+    err = (est - tr).abs()
+    std = post.std("roughness")[0]
+    mad = 1.4826 * (parts - parts.median(0).values).abs().median(0).values
+    say("fig3: %s, %d observations, seed %d done in %.0f s", config, k, s, time.perf_counter() - t)
+    return est, err, std, {"seed": s, "seconds": time.perf_counter() - t, "mean_std": float(std.mean()),
+                           "median_std": float(std.median()), "mean_error": float(err.mean()),
+                           "mean_robust_spread": float(mad.mean()),
+                           "far_fraction": float(((parts - tr).abs() > far).float().mean()),
+                           "mean_std_albedo": float(post.std("albedo").mean())}
+
+
+def run(out, preset: str = "small", seed: int = 0, progress: bool = False, executor=None, **overrides) -> dict:
     """Run the experiment; write ``fig3_<config>.png`` per configuration, ``fig3_std_vs_observations.png``
-    and ``fig3.json`` (``lighting``: each configuration's lights in words, also in its ``summary``)."""
+    and ``fig3.json`` (``lighting``: each configuration's lights in words, also in its ``summary``).
+
+    The runs (a configuration, a count, a seed) are independent: they go through ``executor``
+    (:mod:`bayes_brdf.executor`: ``None`` in this process, ``True`` a local Ray, an address, or an executor),
+    with the same numbers; a configuration's ``seconds`` are its observations' and its runs' own."""
     cfg, out = prepare(__name__, preset, overrides, out)
     counts = _ints(cfg["counts"])
     configs = [c for c in str(cfg["configs"]).replace(" ", "").split(",") if c]
@@ -119,8 +149,7 @@ def run(out, preset: str = "small", seed: int = 0, progress: bool = False, **ove
             raise InputError(f"unknown lighting configuration '{c}'", fix=f"configs: {', '.join(CONFIGS)}")
     if not counts or min(counts) < 1:
         raise InputError(f"counts must be positive integers, got {cfg['counts']!r}", fix="e.g. counts=3,10,100")
-    R, far = int(cfg["resolution"]), float(cfg["far"])
-    params = {"step_size": float(cfg["step_size"])}
+    R = int(cfg["resolution"])
     seeds = (2 * seed, 2 * seed + 1)
     t_all = time.perf_counter()
     env, env_text = environment_light(cfg["env"], cfg["env_scale"], cfg["env_rotate"]) \
@@ -128,33 +157,25 @@ def run(out, preset: str = "small", seed: int = 0, progress: bool = False, **ove
     lighting = {"collocated": f"collocated flash (power {POWER:g}, distance {RADIUS:g})",
                 "light_stage": f"light stage: point lights (power {POWER:g}, distance {RADIUS:g}) off the cameras",
                 "environment": f"environment alone: {env_text}"}
+    # every (configuration, count, seed) is one independent run: the runs go through the executor
+    t_obs, problems = {}, {}
+    for config in configs:
+        t = time.perf_counter()
+        for k in counts:
+            problems[config, k] = observations(config, cfg["material"], R, k, seed, env=env)
+        t_obs[config] = time.perf_counter() - t
+    keys = [(config, k, s) for config in configs for k in counts for s in seeds]
+    with using(executor) as ex:
+        done = ex.map(_fit, [(c, k, s, *problems[c, k]) for c, k, s in keys], shared=(cfg, progress),
+                      seeds=[s for _, _, s in keys])
+    runs = dict(zip(keys, done))
     results, summary = {}, {}
     for config in configs:
         rows, maps = {}, {}
-        t_config = time.perf_counter()
         for k in counts:
-            truth, obs = observations(config, cfg["material"], R, k, seed, env=env)
-            model = per_texel(R, specular=truth.specular, normals=truth.normal, sigma=PAPER_SIGMA)
-            tr = truth.roughness[0]
-            ests, errs, stds, row = [], [], [], {"runs": []}
-            for s in seeds:
-                t = time.perf_counter()
-                post = infer(model, obs, FIGURE_SAMPLER, map_steps=0, seed=s, steps=int(cfg["steps"]), params=params,
-                             particles=int(cfg["particles"]),
-                             z0=start(model, obs, int(cfg["particles"]), s, float(cfg["init_margin"])),
-                             progress=progress)
-                parts = post.particles["roughness"][:, 0]                       # [n, R, R]
-                est = post.map()["roughness"][0]
-                err = (est - tr).abs()
-                std = post.std("roughness")[0]
-                mad = 1.4826 * (parts - parts.median(0).values).abs().median(0).values
-                ests.append(est), errs.append(err), stds.append(std)
-                say("fig3: %s, %d observations, seed %d done in %.0f s", config, k, s, time.perf_counter() - t)
-                row["runs"].append({"seed": s, "seconds": time.perf_counter() - t, "mean_std": float(std.mean()),
-                                    "median_std": float(std.median()), "mean_error": float(err.mean()),
-                                    "mean_robust_spread": float(mad.mean()),
-                                    "far_fraction": float(((parts - tr).abs() > far).float().mean()),
-                                    "mean_std_albedo": float(post.std("albedo").mean())})
+            obs = problems[config, k][1]
+            ests, errs, stds = ([runs[config, k, s][i] for s in seeds] for i in range(3))
+            row = {"runs": [runs[config, k, s][3] for s in seeds]}
             q = [_quartiles(stds[0], e) for e in errs]
             row.update({
                 "views": len(obs.views),
@@ -192,7 +213,7 @@ def run(out, preset: str = "small", seed: int = 0, progress: bool = False, **ove
             "spearman_std_error": {str(k): round(float(np.mean(rows[k]["spearman_std_error"])), 3) for k in counts},
             "std_falls": all(a > b for a, b in zip(ms, ms[1:])),
             "lighting": lighting[config],
-            "seconds": round(time.perf_counter() - t_config, 1),
+            "seconds": round(t_obs[config] + sum(r["seconds"] for k in counts for r in rows[k]["runs"]), 1),
         }
     series, styles = {}, {}
     quantities = (("std", "mean_std", "-"), ("robust spread", "mean_robust_spread", "--"),

@@ -35,6 +35,7 @@ from pathlib import Path
 
 import torch
 
+from ..executor import using
 from ..guidance.acquisition import Evaluation, SyntheticCapture, guided_acquisition
 from ..guidance.recommend import low_discrepancy
 from ..guidance.scores import parse_noise_var
@@ -195,15 +196,31 @@ def _mean_curves(runs: list[dict]) -> dict:
     return out
 
 
-def run(out, preset: str = "small", seed: int = 0, progress: bool = False, **overrides) -> dict:
+def _run_setting(job: tuple, shared: tuple) -> dict:
+    """One ``(setting, seed)`` of the figure, timed (an executor's piece of work)."""
+    kind, s = job
+    cfg, out, progress = shared
+    t = time.perf_counter()
+    res = run_setting(cfg, kind, s, out, progress)
+    return {**res, "seconds": time.perf_counter() - t}
+
+
+def run(out, preset: str = "small", seed: int = 0, progress: bool = False, executor=None, **overrides) -> dict:
+    """Run the figure; write ``fig7_<setting>_<metric>.png`` and ``fig7.json``. The ``(setting, seed)`` runs are
+    independent: they go through ``executor`` (:mod:`bayes_brdf.executor`: ``None`` in this process, ``True`` a
+    local Ray, an address, or an executor), with the same numbers; a setting's ``seconds`` are its runs' own."""
     cfg, out = prepare(__name__, preset, overrides, out)
     t0 = time.perf_counter()
     result = {"preset": preset, "config": cfg, "settings": {}}
     summary, seconds = {}, {}
-    for kind in ("collocated", "light_stage"):
-        t1 = time.perf_counter()
-        runs = [run_setting(cfg, kind, seed + s, out / "runs", progress) for s in range(int(cfg["seeds"]))]
-        seconds[kind] = time.perf_counter() - t1
+    kinds = ("collocated", "light_stage")
+    jobs = [(kind, seed + s) for kind in kinds for s in range(int(cfg["seeds"]))]
+    with using(executor) as ex:
+        done = ex.map(_run_setting, jobs, shared=(cfg, (out / "runs").resolve(), progress),
+                      seeds=[s for _, s in jobs])
+    for kind in kinds:
+        runs = [d for (k, _), d in zip(jobs, done) if k == kind]
+        seconds[kind] = sum(r.pop("seconds") for r in runs)
         curves = _mean_curves(runs)
         surface = scene_surface(cfg["surface"])
         name = cfg["surface"] if cfg["surface"] in SURFACES else surface.name

@@ -173,21 +173,28 @@ def _errors(samples: torch.Tensor, q: dict) -> tuple[float, float]:
 
 
 def compare(setup: Table1Setup | None = None, samplers=SAMPLERS, *, runs: int = 20, particles: int = 16,
-            steps: "int | dict | None" = None, seed: int = 0, progress: bool = False, params: dict | None = None) -> dict:
+            steps: "int | dict | None" = None, seed: int = 0, progress: bool = False, params: dict | None = None,
+            executor=None) -> dict:
     """The table: ``{row: {"mse_mean", "mse_var", "seconds", "evaluations"}}`` plus ``"_truth"``.
 
     ``params`` maps a sampler name to hyper-parameter overrides of its preset. ``steps=None``: each sampler
     runs its preset's steps (what a user gets; the budget is in the ``evaluations`` column); a number gives
     every sampler the same budget; ``{sampler: steps}`` overrides some.
+
+    The samplers' runs are independent pieces of work run through ``executor`` (:mod:`bayes_brdf.executor`:
+    ``None`` in this process, ``True`` a local Ray, an address a Ray cluster, or an executor): a batched
+    sampler's runs are one piece, an unbatched one's each run, NUTS's chain one; the truth is computed once
+    here and its moments sent along. The errors do not depend on the executor; the seconds are each piece's own.
     """
+    from ..executor import using
+
     made = []
     for name in samplers:             # every sampler resolved (a bad name fails) before any work
         over = dict(NUTS_TABLE1) if str(name) == "nuts" else {}
         over.update((params or {}).get(name, {}))
-        made.append(make_sampler(name, params=over))
+        made.append((name, over, *make_sampler(name, params=over)))
     setup = setup or Table1Setup()
     q = quadrature(setup)
-    model, data = problem(setup)
     out = {"_truth": {"mean": q["mean"].tolist(), "var": q["var"].tolist(), "setup": asdict(setup),
                       "runs": runs, "particles": particles, "steps": steps if isinstance(steps, int) else "preset"}}
     gen = torch.Generator().manual_seed(seed)
@@ -195,39 +202,56 @@ def compare(setup: Table1Setup | None = None, samplers=SAMPLERS, *, runs: int = 
     errs = [_errors(iid_draws(q, particles, gen), q) for _ in range(n_iid)]
     out["iid"] = {"mse_mean": sum(e[0] for e in errs) / n_iid, "mse_var": sum(e[1] for e in errs) / n_iid,
                   "seconds": 0.0, "evaluations": 0, "runs": n_iid}
-    for i_s, (smp, cfg) in enumerate(made):
-        say("compare: %s (%d of %d), %d runs ...", smp.name, i_s + 1, len(made), runs)
+    jobs = []                         # (sampler's row, name, overrides, steps, run k | "chain" | "batched")
+    for i_s, (name, over, smp, cfg) in enumerate(made):
         n_steps = (steps.get(smp.name, cfg.steps) if isinstance(steps, dict) else
                    cfg.steps if steps is None else steps)
-        errs, secs, evals = [], 0.0, 0
-        batched = smp.supports_groups   # all runs as independent groups of one batched run
-        if smp.name == "nuts":
-            # one chain (batch means): warm-up, then `runs` consecutive blocks of `particles` thinned draws
-            pot = Potential(model, (data,))
-            t0 = time.perf_counter()
-            res = run(smp, pot, particles=particles * runs, steps=smp.warmup_steps + particles * runs * smp.thin,
-                      seed=seed * 1000, progress=progress, checkpoint_every=0)
-            secs, evals = time.perf_counter() - t0, pot.evaluations
-            x = pot.to_constrained(res.z)
-            xs = torch.cat([x["albedo"], x["roughness"]], 1).reshape(runs, particles, 2)
-            errs = [_errors(xi, q) for xi in xs]
-        for k in range(0 if smp.name == "nuts" else 1 if batched else runs):
-            pot = Potential(model, (data,))
-            t0 = time.perf_counter()
-            res = run(smp, pot, particles=particles, steps=n_steps, seed=seed * 1000 + k, progress=progress,
-                      checkpoint_every=0, groups=runs if batched else 1, init_margin=cfg.init_margin)
-            secs += time.perf_counter() - t0
-            evals += pot.evaluations
-            if not batched:
-                say("compare: %s run %d of %d done", smp.name, k + 1, runs)
-            x = pot.to_constrained(res.z)
-            xs = torch.cat([x["albedo"], x["roughness"]], 1).reshape(-1, particles, 2)
-            errs += [_errors(xi, q) for xi in xs]
+        if smp.name == "nuts":        # one chain (batch means), cut into `runs` blocks
+            jobs.append((i_s, name, over, n_steps, "chain"))
+        elif smp.supports_groups:     # all runs as independent groups of one batched run
+            jobs.append((i_s, name, over, n_steps, "batched"))
+        else:
+            jobs += [(i_s, name, over, n_steps, k) for k in range(runs)]
+    shared = {"setup": setup, "truth": {"mean": q["mean"], "var": q["var"]}, "runs": runs, "particles": particles,
+              "seed": seed, "progress": progress}
+    with using(executor) as ex:
+        done = ex.map(_compare_job, jobs, shared=shared,
+                      seeds=[seed * 1000 + (j[4] if isinstance(j[4], int) else 0) for j in jobs])
+    for i_s, (name, over, smp, cfg) in enumerate(made):
+        mine = [(j, d) for j, d in zip(jobs, done) if j[0] == i_s]
+        errs = [e for _, d in mine for e in d["errors"]]
+        secs, evals = sum(d["seconds"] for _, d in mine), sum(d["evaluations"] for _, d in mine)
+        n_steps, batched = mine[0][0][3], mine[0][0][4] == "batched"
         say("compare: %s done in %.1f s (MSE of the mean %.2g)", smp.name, secs, sum(e[0] for e in errs) / runs)
         out[smp.name] = {"mse_mean": sum(e[0] for e in errs) / runs, "mse_var": sum(e[1] for e in errs) / runs,
                          "seconds": secs / runs, "evaluations": evals // runs, "batched": batched,
                          "steps": n_steps if smp.name != "nuts" else None}
     return out
+
+
+def _compare_job(job: tuple, shared: dict) -> dict:
+    """One piece of :func:`compare`: ``{"errors": [(mse_mean, mse_var) per run], "seconds", "evaluations"}``."""
+    _, name, over, n_steps, what = job
+    runs, particles, seed, progress = shared["runs"], shared["particles"], shared["seed"], shared["progress"]
+    q = shared["truth"]
+    smp, cfg = make_sampler(name, params=over)
+    model, data = problem(shared["setup"])
+    pot = Potential(model, (data,))
+    t0 = time.perf_counter()
+    if what == "chain":               # warm-up, then `runs` consecutive blocks of `particles` thinned draws
+        say("compare: %s, one chain of %d runs ...", smp.name, runs)
+        res = run(smp, pot, particles=particles * runs, steps=smp.warmup_steps + particles * runs * smp.thin,
+                  seed=seed * 1000, progress=progress, checkpoint_every=0)
+    else:
+        k = 0 if what == "batched" else what
+        res = run(smp, pot, particles=particles, steps=n_steps, seed=seed * 1000 + k, progress=progress,
+                  checkpoint_every=0, groups=runs if what == "batched" else 1, init_margin=cfg.init_margin)
+        if what != "batched":
+            say("compare: %s run %d of %d done", smp.name, k + 1, runs)
+    secs = time.perf_counter() - t0
+    x = pot.to_constrained(res.z)
+    xs = torch.cat([x["albedo"], x["roughness"]], 1).reshape(-1, particles, 2)
+    return {"errors": [_errors(xi, q) for xi in xs], "seconds": secs, "evaluations": pot.evaluations}
 
 
 def markdown(table: dict) -> str:
