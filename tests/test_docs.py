@@ -76,7 +76,9 @@ def test_cli_reference_covers_every_command_and_option():
                 assert re.search(rf"^\| `[^`|]*(?<![\w-]){re.escape(opt)}(?![\w-])[^`]*` \|", body, re.M), \
                     f"{' '.join(path)}: option {opt} has no row"
             if not action.option_strings:
-                assert f"`{action.metavar or action.dest}`" in body, f"{' '.join(path)}: argument {action.dest}"
+                m = action.metavar or action.dest
+                shown = f"{m} [{m} ...]" if action.nargs == argparse.ONE_OR_MORE else m     # fit-many CAPTURE...
+                assert f"`{shown}`" in body, f"{' '.join(path)}: argument {action.dest}"
             if action.option_strings and action.nargs != 0 and action.default not in (None, [], argparse.SUPPRESS):
                 assert f"`{action.default}`" in body, f"{' '.join(path)}: default of {action.dest}"
 

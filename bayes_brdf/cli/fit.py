@@ -25,9 +25,14 @@ def add_parser(sub):
                                    "correlation / coverage numbers in summary.json. A rerun resumes the sampler "
                                    "from the checkpoint in --out.")
     add_sampling_args(f, "out/fit")
+    add_holdout_arg(f)
+    f.set_defaults(func=run)
+
+
+def add_holdout_arg(f):
+    """``--holdout`` (``fit`` and ``fit-many``)."""
     f.add_argument("--holdout", type=view_list, default=None,
                    help="comma-separated view indices to hold out (default: every view not in --views)")
-    f.set_defaults(func=run)
 
 
 def _split(n: int, views, holdout):

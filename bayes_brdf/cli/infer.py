@@ -10,9 +10,14 @@ from .common import check_views, key_value, particles_arg, positive_int, steps_a
 from .run_folder import claim_folder, log_run, output_folder
 
 
-def add_sampling_args(f, default_out: str):
-    """The options ``infer`` and ``fit`` share: capture, model, sampler, run size, seed, device, output."""
-    f.add_argument("capture", help="capture folder (or its parameters.json / optim.json / observations.json)")
+def add_sampling_args(f, default_out: str, many: bool = False):
+    """The options ``infer`` and ``fit`` share: capture, model, sampler, run size, seed, device, output
+    (``many``: ``CAPTURE...``, one or more, each fitted into its own sub-folder of ``--out``, as ``fit-many``)."""
+    if many:
+        f.add_argument("captures", nargs="+", metavar="CAPTURE",
+                       help="capture folders (or their parameters.json / optim.json / observations.json)")
+    else:
+        f.add_argument("capture", help="capture folder (or its parameters.json / optim.json / observations.json)")
     f.add_argument("--model", default="per_texel", help="model preset name or TOML path (default: %(default)s)")
     f.add_argument("--sampler", default=None,
                    help="sampler preset name or TOML path (default: spos, calibrated from 2-D to per-texel maps)")
@@ -31,9 +36,15 @@ def add_sampling_args(f, default_out: str):
                    help="override a model option, e.g. sigma=0.02 (repeatable)")
     f.add_argument("--seed", type=int, default=0, help="random seed (default: %(default)s)")
     f.add_argument("--device", default="cpu", help="torch device, e.g. cpu or cuda (default: %(default)s)")
-    f.add_argument("--out", default=None,
-                   help=f"output folder (default: {default_out}/CAPTURE, named after the capture); a rerun of the "
-                        "same command resumes there, another run is refused")
+    if many:
+        f.add_argument("--out", default=default_out, metavar="DIR",
+                       help="output folder: each capture in DIR/<capture name> (a second capture of the same name "
+                            "in DIR/<name>-2 ...), as its own run (default: %(default)s, so each capture's folder is "
+                            "the one a plain fit of it uses); a rerun resumes each, another run is refused")
+    else:
+        f.add_argument("--out", default=None,
+                       help=f"output folder (default: {default_out}/CAPTURE, named after the capture); a rerun of "
+                            "the same command resumes there, another run is refused")
     f.add_argument("--overwrite", action="store_true",
                    help="start over in --out even if it holds another (or the same) run")
 

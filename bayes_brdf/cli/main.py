@@ -11,6 +11,7 @@ Commands (``bayes-brdf COMMAND --help`` for each):
   (name or preset file); writes the posterior, mean and std maps.
 * ``fit CAPTURE``      -- fit on some views, hold out the rest: uncertainty maps, held-out error,
   correlation and coverage numbers.
+* ``fit-many CAPTURE...`` -- ``fit`` of each capture into its own folder (serial, or on Ray: ``--ray``).
 * ``recommend CAPTURE`` -- rank candidate views (held-out or generated) by mutual information.
 * ``demo``             -- the whole story on a synthetic material, with an HTML report.
 * ``compare``          -- the sampler comparison table (the paper's Table 1).
@@ -37,6 +38,7 @@ from .common import positive_float, positive_int
 from . import infer as infer_cmd
 from . import experiment as experiment_cmd
 from . import fit as fit_cmd
+from . import fit_many as fit_many_cmd
 from . import recommend as recommend_cmd
 from . import demo as demo_cmd
 from . import train_decoder as train_decoder_cmd
@@ -406,6 +408,7 @@ def build_parser() -> argparse.ArgumentParser:
     i.set_defaults(func=cmd_inspect)
     infer_cmd.add_parser(sub)
     fit_cmd.add_parser(sub)
+    fit_many_cmd.add_parser(sub)
     recommend_cmd.add_parser(sub)
     demo_cmd.add_parser(sub)
     compare_cmd.add_parser(sub)
@@ -454,7 +457,7 @@ def main(argv=None) -> int:
         except (RuntimeError, ValueError):
             print(f"bayes-brdf: error: --device {a.device!r} is not a torch device; use cpu or cuda", file=sys.stderr)
             return 2
-    if getattr(a, "device", "cpu").startswith("cuda"):
+    if getattr(a, "device", "cpu").startswith("cuda") and not getattr(a, "ray_address", None):  # a cluster's GPUs
         import torch
 
         if not torch.cuda.is_available():
