@@ -21,9 +21,11 @@ in ``pyro.plate``\\ s of your own; both work.
 from __future__ import annotations
 
 import copy
+import ctypes
 import math
 from dataclasses import dataclass
 from math import prod
+from pathlib import Path
 from typing import Callable
 
 import pyro
@@ -50,23 +52,65 @@ class Site:
     transform: object
 
 
+_INTERVAL_SRC = Path(__file__).parent / "_native_interval.c"
+
+
+def _interval_kernels(u: Tensor):
+    """The native forward and backward of :class:`_IntervalFn` for tensors like ``u`` (CPU, float32/64), or
+    ``None`` (then the torch ops below run: the same numbers to rounding)."""
+    if u.device.type != "cpu":
+        return None
+    from .render.native import native_function
+    i64, dbl, ptr = ctypes.c_int64, ctypes.c_double, ctypes.c_void_p
+    fwd = native_function(_INTERVAL_SRC, "bb_interval_fwd", u.dtype, [i64, i64, i64, dbl, dbl, i64] + [ptr] * 4,
+                          extra_flags=("-ffast-math",))
+    bwd = native_function(_INTERVAL_SRC, "bb_interval_bwd", u.dtype, [i64, i64, dbl, i64] + [ptr] * 4,
+                          extra_flags=("-ffast-math",))
+    return None if fwd is None or bwd is None else (fwd, bwd)
+
+
+def _p(t: Tensor | None):
+    return None if t is None else ctypes.c_void_p(t.data_ptr())
+
+
 class _IntervalFn(torch.autograd.Function):
-    """``x = lo + (hi - lo) sigmoid(u)`` and the per-particle ``sum log|dx/du|`` in one fused pass."""
+    """``x = lo + (hi - lo) sigmoid(u)`` and the per-particle ``sum log|dx/du|`` in one fused pass (a native
+    loop on CPU: one read of ``u`` and one write of ``x`` forward, one pass backward; torch ops elsewhere)."""
 
     @staticmethod
     def forward(ctx, u, lo, hi):
+        ctx.width = hi - lo
+        k = _interval_kernels(u)
+        if k is not None:
+            if not u[0].is_contiguous():
+                u = u.contiguous()
+            n, m = u.shape[0], u[0].numel()
+            x = torch.empty(u.shape, dtype=u.dtype)
+            s = torch.empty(u.shape, dtype=u.dtype)
+            ladj = torch.empty(n, dtype=torch.float64)
+            k[0](n, m, u.stride(0) if n > 1 else m, float(lo), float(hi - lo), torch.get_num_threads(), _p(u), _p(x), _p(s), _p(ladj))
+            ctx.save_for_backward(s)
+            ctx.native = k[1]
+            return x, ladj.to(u.dtype)
         s = torch.sigmoid(u)
         x = s * (hi - lo) + lo
         a = u.abs()
         # log s(1-s) = -|u| - 2 log(1 + exp(-|u|)), stable at saturation
         ladj = (-a - 2 * torch.log1p(torch.exp(-a))).reshape(u.shape[0], -1).sum(1) + u[0].numel() * math.log(hi - lo)
         ctx.save_for_backward(s)
-        ctx.width = hi - lo
+        ctx.native = None
         return x, ladj
 
     @staticmethod
     def backward(ctx, gx, gl):
         (s,) = ctx.saved_tensors
+        if ctx.native is not None:
+            g = torch.empty_like(s)
+            gx = None if gx is None else gx.to(s.dtype).contiguous()
+            gl = None if gl is None else gl.to(s.dtype).contiguous()
+            ctx.native(s.shape[0], s[0].numel(), float(ctx.width), torch.get_num_threads(), _p(s), _p(gx), _p(gl),
+                       _p(g))
+            return g, None, None
         shape = (-1,) + (1,) * (s.dim() - 1)
         g = None
         if gx is not None:
@@ -220,7 +264,9 @@ class Potential:
     def _unpack(self, z: Tensor) -> list[Tensor]:
         if z.dim() != 2 or z.shape[1] != self.dim:
             raise InputError(f"particles have shape {tuple(z.shape)}, expected [n, {self.dim}]")
-        return [z[:, s.offset:s.offset + s.size].reshape(z.shape[0], *s.ushape) for s in self.sites]
+        # one split (its backward is one concatenation, not a zero-filled gradient per site)
+        parts = torch.split(z, [s.size for s in self.sites], dim=1)
+        return [p.reshape(z.shape[0], *s.ushape) for s, p in zip(self.sites, parts)]
 
     def _plated(self, s: Site, x: Tensor) -> Tensor:
         """Insert singleton dims so the particle dim sits at the particle plate's position."""

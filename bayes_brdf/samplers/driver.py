@@ -22,6 +22,7 @@ from torch import Tensor
 from tqdm.auto import tqdm
 
 from ..errors import InputError
+from ..memory import keep_freed_memory
 from .diagnostics import Diagnostics, diagnose
 
 FORMAT = "bayes-brdf-checkpoint/1"
@@ -150,6 +151,7 @@ def run(sampler, potential, *, particles: int = 20, steps: int = 1000, seed: int
         >>> 0.7 < float(res.z.var(0).mean()) < 1.3
         True
     """
+    keep_freed_memory()     # a step's large tensors are reused, not faulted in again (bayes_brdf.memory)
     # the caller's global RNG is left as it was; inside, it is seeded (Pyro's NUTS draws from it)
     with torch.random.fork_rng(devices=[]):
         return _run(sampler, potential, particles=particles, steps=steps, seed=seed, z0=z0, checkpoint=checkpoint,

@@ -1,0 +1,66 @@
+/* The interval bijection x = lo + w sigmoid(u) with its log-Jacobian, forward and backward in one pass each
+ * (compiled on first use by render/native.py, the package's one loader of C sources; used by potential.py).
+ *
+ * Forward, for particles i and their m coordinates u[i, :]:
+ *     s = sigmoid(u),  x = lo + w s,  ladj[i] = sum_j log(w s (1 - s))
+ * with log s (1 - s) = -|u| - 2 log1p(exp(-|u|)), stable at saturation; s is kept for the backward.
+ * Backward, given dL/dx (gx) and dL/dladj (gl[i]):
+ *     du = gx w s (1 - s) + gl[i] (1 - 2 s)
+ * Parallel over particles, one particle's sum in one thread in a fixed order (the result does not depend on
+ * the thread count); SIMD inside.
+ */
+#include <tgmath.h> /* exp, log1p of REAL (float: expf, log1pf) */
+#include <omp.h>
+#include <stdint.h>
+
+void bb_interval_fwd(int64_t n, int64_t m, int64_t us, double lo, double w, int64_t nt, const REAL *restrict u,
+                     REAL *restrict x, REAL *restrict s, double *restrict ladj)
+{
+    const REAL rlo = (REAL)lo, rw = (REAL)w;
+    const double logw = log(w) * (double)m;   /* w: double, so log is double */
+#pragma omp parallel for num_threads(nt) schedule(static)
+    for (int64_t i = 0; i < n; i++) {
+        const REAL *restrict ui = u + i * us;   /* us: u's row stride (a slice of z) */
+        REAL *restrict xi = x + i * m, *restrict si = s + i * m;
+        double acc = 0.0;
+        /* blocks of 4096: a float sum in the SIMD loop, a double sum over blocks */
+        for (int64_t b = 0; b < m; b += 4096) {
+            const int64_t e = b + 4096 < m ? b + 4096 : m;
+            REAL part = 0;
+#pragma omp simd reduction(+ : part)
+            for (int64_t j = b; j < e; j++) {
+                const REAL a = ui[j] < 0 ? -ui[j] : ui[j];
+                const REAL t = exp(-a);
+                const REAL inv = (REAL)1 / ((REAL)1 + t);
+                const REAL sj = ui[j] >= 0 ? inv : t * inv;
+                si[j] = sj;
+                xi[j] = rlo + rw * sj;
+                part += -a - (REAL)2 * log1p(t);
+            }
+            acc += (double)part;
+        }
+        ladj[i] = acc + logw;
+    }
+}
+
+void bb_interval_bwd(int64_t n, int64_t m, double w, int64_t nt, const REAL *restrict s,
+                     const REAL *restrict gx, const REAL *restrict gl, REAL *restrict gu)
+{
+    const REAL rw = (REAL)w;
+#pragma omp parallel for num_threads(nt) schedule(static)
+    for (int64_t i = 0; i < n; i++) {
+        const REAL *restrict si = s + i * m;
+        REAL *restrict gi = gu + i * m;
+        const REAL gli = gl ? gl[i] : (REAL)0;
+        if (gx) {
+            const REAL *restrict gxi = gx + i * m;
+#pragma omp simd
+            for (int64_t j = 0; j < m; j++)
+                gi[j] = gxi[j] * (rw * si[j] * ((REAL)1 - si[j])) + gli * ((REAL)1 - (REAL)2 * si[j]);
+        } else {
+#pragma omp simd
+            for (int64_t j = 0; j < m; j++)
+                gi[j] = gli * ((REAL)1 - (REAL)2 * si[j]);
+        }
+    }
+}
