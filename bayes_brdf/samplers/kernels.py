@@ -26,17 +26,28 @@ def rbf_median(z: Tensor, groups: int = 1) -> tuple[Tensor, Tensor]:
     x = z.reshape(groups, n, D)
     if n < 2:
         return torch.ones(groups, n, n, dtype=z.dtype, device=z.device), torch.zeros_like(z)
-    sq = (x * x).sum(-1)
-    d2 = (sq[:, :, None] + sq[:, None, :] - 2 * x @ x.transpose(1, 2)).clamp_min(0)
+    K, h = rbf_matrix(z, groups)
+    h = h[:, None, None]
+    # sum_j grad_{x_j} k(x_j, x_i) = sum_j K_ij (-2/h)(x_j - x_i) = (2/h) (x_i sum_j K_ij - sum_j K_ij x_j)
+    rep = (2 / h) * (x * K.sum(-1, keepdim=True) - K @ x)
+    return K, rep.reshape(N, D)
+
+
+def rbf_matrix(z: Tensor, groups: int = 1) -> tuple[Tensor, Tensor]:
+    """The kernel matrices ``K [G, n, n]`` of :func:`rbf_median` and their bandwidths ``h = M^2 / log n``
+    ``[G]`` (``h = 1`` where all particles coincide); ``n >= 2`` particles per group."""
+    N, D = z.shape
+    n = N // groups
+    x = z.reshape(groups, n, D)
+    gram = x @ x.transpose(1, 2)                                        # [G, n, n]: one pass over z
+    sq = gram.diagonal(dim1=1, dim2=2)
+    d2 = (sq[:, :, None] + sq[:, None, :] - 2 * gram).clamp_min(0)
     eye = torch.eye(n, dtype=torch.bool, device=z.device)
     d2 = d2.masked_fill(eye, 0.0)
     iu = torch.triu_indices(n, n, 1, device=z.device)
     m2 = d2[:, iu[0], iu[1]].sqrt().median(dim=1).values ** 2          # [G]
-    h = torch.where(m2 > 0, m2 / math.log(n), torch.ones_like(m2))[:, None, None]
-    K = torch.exp(-d2 / h)
-    # sum_j grad_{x_j} k(x_j, x_i) = sum_j K_ij (-2/h)(x_j - x_i) = (2/h) (x_i sum_j K_ij - sum_j K_ij x_j)
-    rep = (2 / h) * (x * K.sum(-1, keepdim=True) - K @ x)
-    return K, rep.reshape(N, D)
+    h = torch.where(m2 > 0, m2 / math.log(n), torch.ones_like(m2))
+    return torch.exp(-d2 / h[:, None, None]), h
 
 
 def kernel_apply(K: Tensor, g: Tensor) -> Tensor:

@@ -60,8 +60,10 @@ gradients, and the per-texel calibration was measured with it.
 """
 from __future__ import annotations
 
+import ctypes
 import math
 from dataclasses import dataclass
+from pathlib import Path
 from typing import NamedTuple
 
 import torch
@@ -71,7 +73,7 @@ from ..errors import InputError
 from .base import Info, Sampler
 from .diagnostics import LOW_DIM
 from .config import Configurable
-from .kernels import kernel_apply, rbf_median
+from .kernels import kernel_apply, rbf_matrix, rbf_median
 from .numerics import Preconditioner, anneal, precond_init, precond_update
 
 
@@ -144,6 +146,8 @@ class SPOS(Configurable, Sampler):
         u, grad = potential.value_and_grad(z)
         gam = anneal(t, round(self.anneal_fraction * state.num_steps), self.anneal_delta) if self.anneal else 1.0
         beta, eps = self.beta_for(D), self.eps_for(D)
+        if _native_update(z.dtype) is not None and z.device.type == "cpu" and 2 <= n <= NATIVE_MAX_PARTICLES:
+            return self._fused_step(state, z, u, grad, gam, beta, eps, rng)
         K, rep = rbf_median(z, groups)
         kg = kernel_apply(K, grad)
         shape = (groups, n, D)
@@ -171,6 +175,54 @@ class SPOS(Configurable, Sampler):
             noise.addcmul_(M, corr)
         z = noise.addcmul_(G * lam, drift.view(shape)).add_(zg).view(z.shape)
         return state._replace(z=z, precond=pc, precond_noise=pn), Info(u, {"gamma": gam})
+
+
+    def _fused_step(self, state, z, u, grad, gam, beta, eps, rng):
+        """The update above as one native pass over the coordinates (``_native_spos.c``); the same numbers to
+        rounding, from the same noise draw (tests/samplers/test_spos_native.py)."""
+        groups = state.groups
+        n, D = z.shape[0] // groups, z.shape[1]
+        K, h = rbf_matrix(z, groups)
+        ks = K.sum(-1).contiguous()
+        c2h = (2 / h).to(z.dtype).contiguous()
+        adam = self.preconditioner == "adam"
+        noise_pc = adam and gam < 0.99
+        pc, pn = state.precond, state.precond_noise
+        v_new = torch.empty_like(pc.v)
+        vn_new = torch.empty_like(pn.v) if noise_pc else pn.v
+        noise = torch.randn(z.shape, generator=rng, dtype=z.dtype, device=rng.device).to(z.device)
+        z_new = torch.empty_like(z)
+        zc, gc = z.contiguous(), grad.contiguous()
+        c = pc.count + 1
+        cn = pn.count + 1
+        _native_update(z.dtype)(
+            groups, n, D, torch.get_num_threads(), *map(_ptr, (zc, gc, noise, K.contiguous(), ks, c2h, pc.v, pn.v,
+                                                               z_new, v_new, vn_new)),
+            int(adam), int(self.per_particle(D)),
+            int(noise_pc), int(self.step_units == "spread"), float(gam), float(beta), float(eps),
+            float(self.adam_beta2), 1 - self.adam_beta2 ** c, 1 - self.adam_beta2 ** cn, float(self.step_size),
+            float(self.min_spread))
+        if adam:
+            pc = Preconditioner(v_new, c)
+            if noise_pc:
+                pn = Preconditioner(vn_new, cn)
+        return state._replace(z=z_new, precond=pc, precond_noise=pn), Info(u, {"gamma": gam})
+
+
+NATIVE_MAX_PARTICLES = 64     # NMAX of _native_spos.c: particles per group in the fused update
+
+
+def _native_update(dtype):
+    """The fused native SPOS update for ``dtype`` (float32/float64), or ``None`` (no compiler,
+    ``BAYES_BRDF_NO_NATIVE``): then the torch update runs."""
+    from ..render.native import native_function
+    i64, dbl, ptr = ctypes.c_int64, ctypes.c_double, ctypes.c_void_p
+    return native_function(Path(__file__).parent / "_native_spos.c", "bb_spos_update", dtype,
+                           [i64] * 4 + [ptr] * 11 + [i64] * 4 + [dbl] * 8)
+
+
+def _ptr(t: Tensor):
+    return ctypes.c_void_p(t.data_ptr())
 
 
 def _spread_step(zg: Tensor, step: float, floor: float) -> tuple[Tensor, Tensor | None]:

@@ -1,0 +1,135 @@
+/* One SPOS update (samplers/spos.py, Eqs. 4-6 with the Adam preconditioner and the ensemble-scaled step) fused
+ * into one pass over the coordinates: compiled on first use by render/native.py (the package's one loader).
+ *
+ * Given the particles z, their energy gradients g and the noise xi ([G * n, D], row-major), the RBF kernel
+ * matrix K [G, n, n], its row sums ks [G, n] and c = 2 / h [G] of each group, for each coordinate d:
+ *   rep_i   = c (z_i ks_i - sum_j K_ij z_j)                          (sum_j grad_{x_j} k(x_j, x_i))
+ *   drift_i = (rep_i - gam sum_j K_ij g_j) / n - gam g_i / beta
+ *   v'      = b2 v + (1 - b2) mean_i drift_i^2     (per particle: drift_i^2),  G = 1 / (sqrt(v' / bc) + eps)
+ *   and, while annealing (noise_pc): the same from the un-annealed drift (gam = 1) into vn', G1, Gn = min(G, G1)
+ *   spread: s = max(std_i z_i, floor), lam = step s, corr_i = (z_i - m) / (max(var, floor^2) (n - 1))
+ *   M = Gn lam / beta,  z_i' = z_i + xi_i sqrt(2 M) + M corr_i + G lam drift_i
+ * exactly the torch update of spos.py (the plain reference it is tested against), in one read of z, g, xi, v
+ * and one write of z', v'. Parallel over blocks of coordinates; every output element is computed by one
+ * thread in a fixed order, so the result does not depend on the thread count.
+ */
+#include <tgmath.h> /* sqrt of REAL */
+#include <omp.h>
+#include <stdint.h>
+
+#define B 32     /* coordinates per block: a few SIMD vectors */
+#define NMAX 64  /* particles per group (the caller checks) */
+
+void bb_spos_update(int64_t G, int64_t n, int64_t D, int64_t nt, const REAL *restrict z, const REAL *restrict g,
+                    const REAL *restrict xi, const REAL *restrict K, const REAL *restrict ks,
+                    const REAL *restrict c2h, const REAL *restrict v, const REAL *restrict vn, REAL *restrict zo,
+                    REAL *restrict vo, REAL *restrict vno, int64_t adam, int64_t per_particle, int64_t noise_pc,
+                    int64_t spread, double gam, double beta, double eps, double b2, double bc, double bcn,
+                    double step, double floor)
+{
+    const int64_t nblk = (D + B - 1) / B;
+    const REAL rg = (REAL)gam, ibeta = (REAL)(1.0 / beta), gb = (REAL)(gam / beta), in = (REAL)(1.0 / n),
+               reps = (REAL)eps, rb2 = (REAL)b2, r1b2 = (REAL)(1.0 - b2), ibc = (REAL)(1.0 / bc),
+               ibcn = (REAL)(1.0 / bcn), rstep = (REAL)step, rfloor = (REAL)floor, ff = (REAL)(floor * floor);
+#pragma omp parallel for num_threads(nt) schedule(static) collapse(2)
+    for (int64_t q = 0; q < G; q++) {
+        for (int64_t k = 0; k < nblk; k++) {
+            const int64_t d0 = k * B, m = D - d0 < B ? D - d0 : B;
+            REAL zc[NMAX][B], gc[NMAX][B], dr[NMAX][B], d1[NMAX][B];
+            REAL lam[B], corrs[B], mean[B], Gs[B], G1[B];
+            const REAL *restrict Kq = K + q * n * n, *restrict ksq = ks + q * n;
+            const REAL c = c2h[q];
+            for (int64_t j = 0; j < n; j++) {
+                const REAL *restrict zr = z + (q * n + j) * D + d0, *restrict gr = g + (q * n + j) * D + d0;
+                for (int64_t b = 0; b < m; b++) { zc[j][b] = zr[b]; gc[j][b] = gr[b]; }
+                for (int64_t b = m; b < B; b++) { zc[j][b] = 0; gc[j][b] = 0; }
+            }
+            for (int64_t i = 0; i < n; i++) {
+                REAL kz[B], kg[B];
+#pragma omp simd
+                for (int64_t b = 0; b < B; b++) { kz[b] = 0; kg[b] = 0; }
+                for (int64_t j = 0; j < n; j++) {
+                    const REAL kij = Kq[i * n + j];
+#pragma omp simd
+                    for (int64_t b = 0; b < B; b++) { kz[b] += kij * zc[j][b]; kg[b] += kij * gc[j][b]; }
+                }
+                const REAL ksi = ksq[i];
+#pragma omp simd
+                for (int64_t b = 0; b < B; b++) {
+                    const REAL rep = c * (zc[i][b] * ksi - kz[b]);
+                    dr[i][b] = (rep - rg * kg[b]) * in - gb * gc[i][b];
+                    d1[i][b] = (rep - kg[b]) * in - ibeta * gc[i][b];
+                }
+            }
+            /* the ensemble-scaled step */
+            if (spread && n >= 2) {
+#pragma omp simd
+                for (int64_t b = 0; b < B; b++) mean[b] = 0;
+                for (int64_t j = 0; j < n; j++)
+#pragma omp simd
+                    for (int64_t b = 0; b < B; b++) mean[b] += zc[j][b];
+#pragma omp simd
+                for (int64_t b = 0; b < B; b++) { mean[b] *= in; corrs[b] = 0; }
+                for (int64_t j = 0; j < n; j++)
+#pragma omp simd
+                    for (int64_t b = 0; b < B; b++) { const REAL e = zc[j][b] - mean[b]; corrs[b] += e * e; }
+#pragma omp simd
+                for (int64_t b = 0; b < B; b++) {
+                    const REAL var = corrs[b] / (REAL)(n - 1), s = sqrt(var);
+                    lam[b] = rstep * (s > rfloor ? s : rfloor);
+                    corrs[b] = (REAL)1 / ((var > ff ? var : ff) * (REAL)(n - 1));   /* corr_i = (z_i - m) corrs */
+                }
+            } else {
+#pragma omp simd
+                for (int64_t b = 0; b < B; b++) { lam[b] = rstep; corrs[b] = 0; mean[b] = 0; }
+            }
+            const int64_t with_corr = spread && n >= 2;
+            /* the preconditioner(s): one second moment per group, or per particle */
+            const int64_t np = per_particle ? n : 1;
+            for (int64_t p = 0; p < np; p++) {
+                const int64_t row = per_particle ? q * n + p : q;
+                const int64_t i0 = per_particle ? p : 0, i1 = per_particle ? p + 1 : n;
+                const REAL w = (REAL)1 / (REAL)(i1 - i0);
+                if (adam) {
+                    REAL s2[B], s1[B];
+#pragma omp simd
+                    for (int64_t b = 0; b < B; b++) { s2[b] = 0; s1[b] = 0; }
+                    for (int64_t i = i0; i < i1; i++)
+#pragma omp simd
+                        for (int64_t b = 0; b < B; b++) { s2[b] += dr[i][b] * dr[i][b]; s1[b] += d1[i][b] * d1[i][b]; }
+                    const REAL *restrict vr = v + row * D + d0;
+                    REAL *restrict vor = vo + row * D + d0;
+                    for (int64_t b = 0; b < m; b++) {
+                        const REAL nv = rb2 * vr[b] + r1b2 * (s2[b] * w);
+                        vor[b] = nv;
+                        Gs[b] = (REAL)1 / (sqrt(nv * ibc) + reps);
+                        G1[b] = Gs[b];
+                    }
+                    if (noise_pc) {   /* vn, vno: only read and written while annealing */
+                        const REAL *restrict vnr = vn + row * D + d0;
+                        REAL *restrict vnor = vno + row * D + d0;
+                        for (int64_t b = 0; b < m; b++) {
+                            const REAL nn = rb2 * vnr[b] + r1b2 * (s1[b] * w);
+                            vnor[b] = nn;
+                            G1[b] = (REAL)1 / (sqrt(nn * ibcn) + reps);
+                        }
+                    }
+                } else {
+                    for (int64_t b = 0; b < m; b++) { Gs[b] = 1; G1[b] = 1; }
+                }
+                for (int64_t i = i0; i < i1; i++) {
+                    const int64_t r = (q * n + i) * D + d0;
+                    const REAL *restrict xr = xi + r;
+                    REAL *restrict out = zo + r;
+                    for (int64_t b = 0; b < m; b++) {
+                        const REAL gn = G1[b] < Gs[b] ? G1[b] : Gs[b];
+                        const REAL M = gn * lam[b] * ibeta;
+                        REAL zz = xr[b] * sqrt((REAL)2 * M) + Gs[b] * lam[b] * dr[i][b];
+                        if (with_corr) zz += M * (zc[i][b] - mean[b]) * corrs[b];
+                        out[b] = zz + zc[i][b];
+                    }
+                }
+            }
+        }
+    }
+}
