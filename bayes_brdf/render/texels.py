@@ -124,7 +124,7 @@ def tap_matrix(uv: Tensor, resolution, align_corners: bool, dtype=torch.float32,
     """``(S, S^T)``: the ``K x T`` lookup matrix of :func:`bilinear_taps` and its transpose, both sparse CSR."""
     idx, wt = bilinear_taps(uv, resolution, align_corners)
     K, T = idx.shape[0], resolution[0] * resolution[1]
-    rows = torch.arange(K).repeat_interleave(4)
+    rows = torch.arange(K, device=idx.device).repeat_interleave(4)      # on the uv's device (CUDA too)
     with warnings.catch_warnings():      # torch calls its CSR support "beta"; the products used here are tested
         warnings.simplefilter("ignore", UserWarning)
         coo = torch.sparse_coo_tensor(torch.stack([rows, idx.reshape(-1)]), wt.reshape(-1), (K, T),
