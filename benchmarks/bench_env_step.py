@@ -25,6 +25,7 @@ from bayes_brdf.render.environment import EnvironmentLight, z_up
 from bayes_brdf.render.gbuffer import GBUFFERS
 from bayes_brdf.render.mesh import Mesh
 from bayes_brdf.render.views import View
+from bayes_brdf.memory import keep_freed_memory
 
 try:
     from bench_mesh_step import interleaved, setup
@@ -43,6 +44,7 @@ def main(argv=None):
     ap.add_argument("--particles", type=int, default=20)
     ap.add_argument("--repeats", type=int, default=11)
     a = ap.parse_args(argv)
+    keep_freed_memory()   # as the sampling driver does in a run (bayes_brdf.memory; BAYES_BRDF_KEEP_MEMORY=0: off)
     mesh = Mesh.load(DATA / "bunny_low.obj", up="y")
     flash = collocated_views(a.views, 2.6 * mesh.radius, resolution=a.res, target=mesh.center, fov=45,
                              method="sobol", power=(2.6 * mesh.radius) ** 2)

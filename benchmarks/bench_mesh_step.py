@@ -33,6 +33,7 @@ from bayes_brdf.render import SVBRDF, PlanarSample, collocated_views
 from bayes_brdf.render.mesh import Mesh
 from bayes_brdf.render.shade import render
 from bayes_brdf.samplers import make_sampler
+from bayes_brdf.memory import keep_freed_memory
 
 BUNNY = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "psdr_assets" / "bunny_low.obj"
 
@@ -77,6 +78,7 @@ def main(argv=None):
     ap.add_argument("--particles", type=int, default=20)
     ap.add_argument("--repeats", type=int, default=15)
     a = ap.parse_args(argv)
+    keep_freed_memory()   # as the sampling driver does in a run (bayes_brdf.memory; BAYES_BRDF_KEEP_MEMORY=0: off)
     mesh = {"bunny": lambda: Mesh.load(BUNNY, up="y"), "sphere": Mesh.sphere, "bowl": Mesh.bowl}[a.mesh]()
     mviews = collocated_views(a.views, 2.6 * mesh.radius, resolution=a.res, target=mesh.center, fov=45,
                               method="sobol", power=(2.6 * mesh.radius) ** 2)

@@ -65,6 +65,7 @@ from bayes_brdf.potential import Potential
 from bayes_brdf.render import PlanarSample, collocated_views
 from bayes_brdf.render.shade import render
 from bayes_brdf.samplers import make_sampler
+from bayes_brdf.memory import keep_freed_memory
 
 SAMPLERS = ("spos", "svgd", "sgld", "emcee", "multistart_sgd", "nuts")
 ROWS = ("potential", *SAMPLERS, "spos_eager", "pyro_svgd")
@@ -197,6 +198,7 @@ def main(argv=None):
                     help="advance each sampler's chain while timing (default: every step from the initial state)")
     ap.add_argument("--threads", type=int, default=None, help="torch.set_num_threads (default: torch's choice)")
     a = ap.parse_args(argv)
+    keep_freed_memory()   # as the sampling driver does in a run (bayes_brdf.memory; BAYES_BRDF_KEEP_MEMORY=0: off)
     if a.threads:
         torch.set_num_threads(a.threads)
     timer = Timer(a.warmup, a.steps, a.repeats, a.max_seconds)

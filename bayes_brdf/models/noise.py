@@ -124,21 +124,34 @@ def fit_noise_level(signal: Tensor, residual: Tensor, *, kind: str = "laplace", 
     theta = torch.tensor([math.log(0.5 * s0 * s0), math.log(1e-3 * s0 * s0 / max(ym, 1e-6)),
                           math.log(0.5 * s0 * s0 / max(ym, 1e-6) ** 2)], dtype=torch.float64, requires_grad=True)
     y2 = y * y
+    # every channel of a value shares its scale: the nll needs the channels' sum of |r| (Laplace) or of r^2 only
+    C = r.shape[1]
+    R = (r.sum(1) if kind == "laplace" else r.pow(2).sum(1)).div_(C)
 
-    def nll():
-        a, b, c = theta.exp()
-        s = (a + b * y + c * y2 + ex).sqrt()[:, None]
+    def nll_and_grad():
+        """The mean nll per channel value and its gradient in ``theta = log(a, b, c)``, in closed form (one pass,
+        no autograd graph over the ``K`` values): with ``v = s^2``, ``d nll / d v = 1 / (2 v) - R / (2 v s)``
+        (Laplace) or ``1 / (2 v) - R / (2 v^2)`` (Gaussian)."""
+        a, b, c = theta.detach().exp()
+        v = (a + b * y + c * y2).add_(ex)
         if kind == "laplace":
-            return (torch.log(s) + r / s).mean()
-        return (torch.log(s) + 0.5 * (r / s) ** 2).mean()
+            s_ = v.sqrt()
+            q = R / s_
+            loss = (0.5 * v.log() + q).mean()
+            dv = (1 - q).div_(v).mul_(0.5)
+        else:
+            q = R / v
+            loss = (0.5 * v.log() + 0.5 * q).mean()
+            dv = (1 - q).div_(v).mul_(0.5)
+        g = torch.stack([dv.mean() * a, (dv * y).mean() * b, (dv * y2).mean() * c])
+        return loss, g
 
     opt = torch.optim.LBFGS([theta], lr=1.0, max_iter=iters, line_search_fn="strong_wolfe",
                             tolerance_grad=1e-12, tolerance_change=1e-14)
 
     def closure():
-        opt.zero_grad()
-        loss = nll()
-        loss.backward()
+        loss, g = nll_and_grad()
+        theta.grad = g
         return loss
 
     opt.step(closure)
