@@ -206,3 +206,45 @@ def infer(model: "Callable | str | dict", observations: "Observations | ModelDat
     if res.diagnostics is not None and not res.diagnostics.converged:
         warnings.warn(res.diagnostics.message(), ConvergenceWarning, stacklevel=2)
     return post
+
+
+#: steps of a warm-started run (:func:`update`): the particles start at the earlier posterior
+WARM_STEPS = 300
+
+
+def update(posterior: Posterior, observations: "Observations | ModelData", sampler: "str | dict | object" = "spos",
+           *, steps: int = WARM_STEPS, params: dict | None = None, seed: int = 0, **kw) -> Posterior:
+    """The posterior after more photos: ``posterior`` (of the same model) brought up to date with
+    ``observations`` (the photos it was fitted on plus the new ones), warm-started from its particles.
+
+    The sampler starts where ``posterior``'s particles are, already near the new posterior (one or a few more
+    photos move it a little), so it runs ``steps`` steps (default :data:`WARM_STEPS`, against the preset's
+    2000 of a cold run) without annealing (SPOS's and SVGD's ``anneal = false``: the annealing of Eq. 6 lets particles
+    drift from a prior draw before the data pull; from a posterior it would only throw the start away).
+    Everything else is :func:`infer`'s (``kw``: ``checkpoint``, ``progress``, ``map_steps``, ...): the noise
+    level is estimated again, the convergence checks run. This is what ``bayes-brdf recommend --from RUN``
+    does before it scores the next views (docs/guidance.md has the measured time and agreement with a cold run).
+
+    Example:
+        >>> import bayes_brdf as bb
+        >>> from bayes_brdf.render import SVBRDF, PlanarSample, collocated_views
+        >>> from bayes_brdf.render.shade import render
+        >>> views = collocated_views(4, 3.0, camera="rectified", resolution=8)
+        >>> obs = bb.Observations(views, render(SVBRDF.constant(0.5, 0.3), views, PlanarSample(2.0))[0], PlanarSample(2.0))
+        >>> m = bb.models.homogeneous(albedo="gray")
+        >>> first = bb.infer(m, obs.subset([0, 1, 2]), "spos", steps=300, progress=False)
+        >>> more = bb.inference.update(first, obs, steps=100, progress=False)
+        >>> abs(float(more.mean("albedo")) - 0.5) < 0.05, more.meta["steps"]
+        (True, 100)
+    """
+    if posterior.z is None or posterior.model is None:
+        raise InputError("this posterior has no particles or no model to start from",
+                         fix="use a posterior written by bb.infer or by fit/infer/recommend (posterior.safetensors)")
+    p = {"anneal": False} if _anneals(sampler) else {}
+    return infer(posterior.model, observations, sampler, steps=steps, params={**p, **(params or {})}, seed=seed,
+                 z0=posterior.z, **kw)
+
+
+def _anneals(sampler) -> bool:
+    """Whether ``sampler`` (a name, a preset file, a table or a sampler) has an ``anneal`` option (SPOS, SVGD)."""
+    return hasattr(make_sampler(sampler)[0], "anneal")

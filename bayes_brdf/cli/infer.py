@@ -74,11 +74,12 @@ def load(a, command: str, full: bool = False):
     return (obs, cap, out) if full else (obs, out)
 
 
-def sample(a, obs, out: Path):
+def sample(a, obs, out: Path, *, z0=None, start: dict | None = None):
     """Sample the posterior for the parsed arguments ``a`` on ``obs``; checkpoints (and resumes) in ``out``.
 
     ``out`` must hold this run or nothing (:func:`~bayes_brdf.cli.run_folder.claim_folder`); the
-    invocation is appended to ``out/run_log.jsonl``.
+    invocation is appended to ``out/run_log.jsonl``. ``z0``: start from these particles (a warm start,
+    ``recommend --from``), described by ``start`` in the run's fingerprint.
     """
     from ..errors import ConvergenceWarning
     from ..identity import observations_digest
@@ -88,7 +89,7 @@ def sample(a, obs, out: Path):
 
     table = model_table(a.model, dict(a.model_param), obs.resolution[0])
     digest = observations_digest(obs)       # once per run: the folder's fingerprint and the checkpoint's
-    status = claim_folder(a, obs, table, digest)
+    status = claim_folder(a, obs, table, digest, start=start)
     if status == "overwritten":
         print(f"bayes-brdf: --overwrite: starting over in {out}", file=sys.stderr)
     t = time.perf_counter()
@@ -97,7 +98,7 @@ def sample(a, obs, out: Path):
             warnings.simplefilter("ignore", ConvergenceWarning)
             post = infer(table, obs, a.sampler or "spos", seed=a.seed, particles=a.particles, steps=a.steps,
                          params=dict(a.param) or None, checkpoint=out / "checkpoint.pt",
-                         progress=sys.stderr.isatty(), device=a.device, observations_digest=digest)
+                         progress=sys.stderr.isatty(), device=a.device, observations_digest=digest, z0=z0)
     except Interrupted as e:
         log_run(out, {"status": f"interrupted at step {e.step}", "wall_seconds": time.perf_counter() - t})
         raise

@@ -26,6 +26,13 @@ def add_parser(sub):
     add_sampling_args(r, "out/recommend")
     r.add_argument("--posterior", default=None,
                    help="a posterior.safetensors written by fit/infer (skips fitting; its model must be a preset)")
+    r.add_argument("--from", dest="from_run", default=None, metavar="RUN",
+                   help="the next view while the user holds the camera: a folder of an earlier fit/infer/recommend "
+                        "run on this capture (or its posterior.safetensors), fitted on fewer photos; the sampler "
+                        "starts from its particles and runs --warm-steps (no annealing) on --views, the earlier "
+                        "photos and the new ones, before scoring the candidates")
+    r.add_argument("--warm-steps", type=positive_int, default=None,
+                   help="steps of the warm-started run with --from (default: 300; --steps says the same)")
     r.add_argument("--candidates", default="heldout",
                    help="heldout, fibonacci:N, sobol:N or a JSON file of views (default: %(default)s)")
     r.add_argument("--candidate-light", default="capture", choices=LIGHTINGS,
@@ -144,11 +151,15 @@ def run(a) -> int:
 
     nv = parse_noise_var(a.noise_var)           # checked before any fitting
     t0 = time.perf_counter()
+    prev = _earlier_posterior(a) if a.from_run else None
     obs, full, out = load(a, "recommend", full=True)
     fitted = list(range(len(full))) if a.views is None else list(a.views)
     # a bad --candidates or --candidate-light fails before the fit
     cands, labels = _candidates(a.candidates, full, fitted, a.candidate_light, a.flash_power)
-    if a.posterior:
+    if prev is not None:
+        post = sample(a, obs, out, z0=prev.z, start=_start_label(a.from_run, prev))
+        post.save(out / "posterior.safetensors")
+    elif a.posterior:
         post = Posterior.load(a.posterior)
         if post.model is None:
             raise InputError("this posterior's model cannot be rebuilt from its file", where=a.posterior,
@@ -167,7 +178,9 @@ def run(a) -> int:
     result = {"capture": str(a.capture), "fitted_views": fitted, "candidates": a.candidates, "method": a.method,
               "candidate_light": a.candidate_light, "candidates_lit_by": _describe(cands), "k": a.k,
               "radius_deg": a.radius, "estimator": a.estimator, "noise_var": nv,
-              "fit_seconds": t_fit,
+              "fit_seconds": t_fit, "warm_start": None if prev is None else {
+                  "from": str(a.from_run), "fitted_views_before": _earlier_views(a.from_run),
+                  "steps": post.meta.get("steps")},
               "recommended": [labels[i] for i in rec.indices], **rec.to_dict()}
     if scores is not None:
         result["all"] = [{"candidate": labels[i], "mi": float(scores.mi[i]), "mean_std": float(scores.mean_std[i]),
@@ -187,6 +200,50 @@ def run(a) -> int:
     if scores is not None and nv == 0 and bool((scores.mi < 0).any()):
         print("(the noise-free score is a differential entropy, so it can be negative: only the order matters)")
     return 0
+
+
+def _earlier_posterior(a):
+    """The posterior of ``--from RUN`` (a run folder or its ``posterior.safetensors``), checked before any work;
+    sets the warm start's run length and switches annealing off in ``a``."""
+    from ..errors import InputError
+    from ..inference import WARM_STEPS
+    from ..posterior import Posterior
+
+    if a.posterior:
+        raise InputError("--from and --posterior both give a posterior", fix="use --from RUN to warm-start a fit on "
+                         "the new photos, or --posterior FILE to score with a posterior as it is")
+    p = Path(a.from_run)
+    f = p / "posterior.safetensors" if p.is_dir() else p
+    if not f.is_file():
+        raise InputError("no posterior.safetensors in the run folder given to --from", where=p,
+                         fix="give the --out folder of an earlier fit, infer or recommend on this capture")
+    prev = Posterior.load(f)
+    if prev.z is None:
+        raise InputError("this posterior has no particles to start from", where=f,
+                         fix="give the folder of a run written by fit, infer or recommend")
+    if a.warm_steps is not None and a.steps is not None and a.warm_steps != a.steps:
+        raise InputError(f"--warm-steps {a.warm_steps} and --steps {a.steps} disagree", fix="give one of them")
+    a.steps = a.steps or a.warm_steps or WARM_STEPS
+    if not any(k == "anneal" for k, _ in a.param) and (a.sampler or "spos") in ("spos", "svgd"):
+        a.param = [("anneal", False), *a.param]      # as bb.inference.update: from a posterior, no annealing
+    return prev
+
+
+def _earlier_views(run):
+    """The views the ``--from`` run fitted, from its ``run.json`` (``None``: all of them, or not recorded)."""
+    import json
+
+    try:
+        return json.loads((Path(run) / "run.json").read_text()).get("fingerprint", {}).get("views")
+    except (OSError, ValueError, AttributeError):
+        return None
+
+
+def _start_label(run, prev) -> dict:
+    """What the warm start starts from, for the run's fingerprint: the earlier particles' digest."""
+    from ..identity import digest_tensor
+
+    return {"from": str(Path(run).resolve()), "particles": digest_tensor(prev.z)}
 
 
 def _describe(views) -> str:

@@ -48,15 +48,16 @@ def _views_label(views) -> str:
     return "all views" if views is None else "views " + ",".join(str(v) for v in views)
 
 
-def claim_folder(a, obs, model: dict, data: str) -> str:
+def claim_folder(a, obs, model: dict, data: str, start: dict | None = None) -> str:
     """Claim ``a.out`` for this run (see module doc): the run of ``a``'s options on the loaded ``obs``
     with the model table ``model`` (:func:`~bayes_brdf.runs.fingerprint.model_table`) and the photos'
-    digest ``data``; ``"new"``, ``"same"`` or ``"overwritten"``."""
+    digest ``data``; ``"new"``, ``"same"`` or ``"overwritten"``. ``start``: where a warm-started run's particles
+    come from (``recommend --from``), part of its fingerprint."""
     from ..io.outputs import claim
     from ..runs.fingerprint import run_fingerprint
 
     fp = run_fingerprint(data, model=model, sampler=a.sampler, params=dict(a.param), particles=a.particles,
-                         steps=a.steps, seed=a.seed, views=a.views, resolution=list(obs.resolution))
+                         steps=a.steps, seed=a.seed, views=a.views, resolution=list(obs.resolution), start=start)
     label = (f"{capture_name(a.capture)} ({_views_label(a.views)}, {obs.resolution[0]} px, model {a.model}, "
              f"sampler {a.sampler or 'spos'}, seed {a.seed})")
     return claim(a.out, fp, label, overwrite=getattr(a, "overwrite", False), owned=OWNED)

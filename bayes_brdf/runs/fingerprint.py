@@ -36,7 +36,8 @@ def model_table(model: str, overrides: dict, resolution: int) -> dict:
 
 
 def run_fingerprint(data: str, *, model: dict, sampler: str | None, params: dict, particles: int | None,
-                    steps: "int | str | None", seed: int, views: list[int] | None, resolution: list[int]) -> dict:
+                    steps: "int | str | None", seed: int, views: list[int] | None, resolution: list[int],
+                    start: dict | None = None) -> dict:
     """The fingerprint of a run on observations with digest ``data``: the model table (:func:`model_table`),
     the sampler preset (``None``: ``spos``) with its ``params`` overrides, ``particles`` and ``steps``
     (``None``: the preset's), the seed, the fitted ``views`` (``None``: all) and the photos' resolution."""
@@ -44,5 +45,7 @@ def run_fingerprint(data: str, *, model: dict, sampler: str | None, params: dict
     from ..presets import load_preset
 
     preset = dict(load_preset("samplers", sampler or "spos"))
+    extra = {} if start is None else {"start": start}
     return fingerprint(data=data, model=model, seed=seed, views=views, resolution=list(resolution),
-                       sampler={"preset": preset, "params": dict(params), "particles": particles, "steps": steps})
+                       sampler={"preset": preset, "params": dict(params), "particles": particles, "steps": steps},
+                       **extra)
