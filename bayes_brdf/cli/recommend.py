@@ -6,6 +6,7 @@ import math
 import time
 from pathlib import Path
 
+from ..executor import add_ray_args, executor_of_args
 from .common import positive_float, positive_int
 from .infer import add_sampling_args, load, sample
 
@@ -51,6 +52,7 @@ def add_parser(sub):
                         "(default: %(default)s)")
     r.add_argument("--estimator", default="mc", choices=["mc", "quadrature"],
                    help="entropy estimator: mc (Eq. 21) or quadrature (deterministic, slower) (default: %(default)s)")
+    add_ray_args(r)
     r.add_argument("--noise-var", default="0",
                    help="noise variance in the score: a number (0, the default, is the paper's noise-free renderer) "
                         "or 'observation' (the model's photo noise; see docs/guidance.md)")
@@ -143,13 +145,16 @@ def _candidates(spec: str, full, fitted, light: str = "capture", flash_power=Non
 
 def run(a) -> int:
     from ..errors import InputError
-    from ..guidance import recommend, score_views
+    from ..executor import score_candidates
+    from ..guidance import recommend
     from ..guidance.scores import parse_noise_var
     from ..io.outputs import write_json
     from ..plots import plot_candidates
     from ..posterior import Posterior
 
     nv = parse_noise_var(a.noise_var)           # checked before any fitting
+    if a.ray or a.ray_address:
+        executor_of_args(a).close()             # Ray missing or a cluster out of reach: one line before the fit
     t0 = time.perf_counter()
     prev = _earlier_posterior(a) if a.from_run else None
     obs, full, out = load(a, "recommend", full=True)
@@ -171,8 +176,10 @@ def run(a) -> int:
         post.save(out / "posterior.safetensors")
     t_fit = time.perf_counter() - t0
     scores = None
-    if a.method in ("mi", "std"):
-        scores = score_views(post, cands, full.surface, estimator=a.estimator, seed=a.seed, noise_var=nv)
+    if a.method in ("mi", "std"):    # in shards of candidates, in this process or on Ray: the same numbers
+        with executor_of_args(a) as ex:
+            scores = score_candidates(post, cands, full.surface, executor=ex, estimator=a.estimator, seed=a.seed,
+                                      noise_var=nv)
     rec = recommend(post, cands, a.k, method=a.method, radius=a.radius, surface=full.surface, seed=a.seed,
                     scores=scores, offset=len(fitted))
     result = {"capture": str(a.capture), "fitted_views": fitted, "candidates": a.candidates, "method": a.method,

@@ -159,7 +159,7 @@ def guided_acquisition(model: "Callable | str", initial: Observations, candidate
                        seed: int = 0, warm_start: bool = True, initial_indices: "list[int] | tuple" = (),
                        evaluation: Callable | None = None, out: "str | Path | None" = None, progress: bool = False,
                        score_kw: dict | None = None, on_round: Callable | None = None,
-                       map_steps: int | None = None) -> AcquisitionResult:
+                       map_steps: int | None = None, executor=None) -> AcquisitionResult:
     """Algorithm 1 with ``k`` views per round (hypersphere exclusion of ``radius`` degrees between them).
 
     Args:
@@ -173,6 +173,8 @@ def guided_acquisition(model: "Callable | str", initial: Observations, candidate
         warm_start: start each round's sampler from the previous round's particles.
         initial_indices: candidate indices already in ``initial`` (never recommended again).
         evaluation: ``evaluation(post, surface) -> dict`` of metrics per round (e.g. :class:`Evaluation`).
+        executor: score each round's candidates in shards through it (a local Ray, a cluster; see
+            :func:`~bayes_brdf.guidance.recommend.recommend`); ``None``: in this process.
         out: folder for per-round files; rerunning resumes after the last finished round.
         on_round: called as ``on_round(record, posterior)`` after every round (progress reporting).
         map_steps: the MAP refinement of every round's posterior (see :func:`bayes_brdf.infer`).
@@ -217,7 +219,7 @@ def guided_acquisition(model: "Callable | str", initial: Observations, candidate
                    "metrics": metrics, "used": list(used), "picks": None}
             if r < rounds:
                 pick = recommend(post, candidates, ks[r], method=method, radius=radius, exclude=used, surface=surface,
-                                 seed=seed + r, offset=len(obs), **(score_kw or {}))
+                                 seed=seed + r, offset=len(obs), executor=executor, **(score_kw or {}))
                 rec["picks"] = pick.to_dict()
                 rec["recommend_seconds"] = time.perf_counter() - t1
             rec["fingerprint"] = fp

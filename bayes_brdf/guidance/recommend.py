@@ -161,7 +161,7 @@ def low_discrepancy(candidates, k: int, *, offset: int = 0, seed: int = 0, exclu
 def recommend(post: "Posterior | SVBRDF", candidates: list, k: int = 1, *, method: str = "mi", radius: float = 0.0,
               exclude: "list[int] | tuple" = (),
               surface=None, seed: int = 0, offset: int = 0, scores: CandidateScores | None = None,
-              **score_kw: object) -> Recommendation:
+              executor=None, **score_kw: object) -> Recommendation:
     """Recommend ``k`` of ``candidates`` to capture next.
 
     Args:
@@ -173,6 +173,9 @@ def recommend(post: "Posterior | SVBRDF", candidates: list, k: int = 1, *, metho
         exclude: candidate indices that may not be picked (already captured).
         scores: reuse scores computed before (skips rendering).
         score_kw: passed to :func:`~bayes_brdf.guidance.scores.score_views` (``estimator``, ``noise_var``...).
+        executor: score the candidates in shards through this executor (``True``: a local Ray, an address: a
+            Ray cluster, an :mod:`~bayes_brdf.executor` object), the particles sent once
+            (:func:`~bayes_brdf.executor.score_candidates`); ``None``: one :func:`score_views` call here.
     """
     candidates = list(candidates)
     if method not in METHODS:
@@ -190,7 +193,10 @@ def recommend(post: "Posterior | SVBRDF", candidates: list, k: int = 1, *, metho
         g = torch.Generator().manual_seed(seed * 7919 + offset)
         idx = [free[int(j)] for j in torch.randperm(len(free), generator=g)[:k]]
     else:
-        if scores is None:
+        if scores is None and executor is not None:
+            from ..executor import score_candidates
+            scores = score_candidates(post, candidates, surface, executor=executor, **{"seed": seed, **score_kw})
+        elif scores is None:
             scores = score_views(post, candidates, surface, **{"seed": seed, **score_kw})
         idx = top_k(scores.mi if method == "mi" else scores.mean_std, candidates, k, radius, exclude, centre)
     return Recommendation(idx, method, scores, [candidates[i] for i in idx])

@@ -61,3 +61,15 @@ def test_bad_warm_starts_are_one_line(session, tmp_path, capsys, extra, words):
                  "--out", str(tmp_path / "x")])
     err = capsys.readouterr().err
     assert code == 2 and words in err and len(err.strip().splitlines()) == 1 and "Traceback" not in err
+
+
+def test_candidates_scored_on_ray_give_the_serial_scores(session, tmp_path, ray_local):
+    """`recommend --ray`: the candidates scored in shards as Ray tasks, the particles sent once; the same numbers."""
+    post = session / "first" / "posterior.safetensors"
+    args = ["recommend", str(session / "cap"), "--views", "0,2,4,6", "--resolution", "16", "--posterior", str(post),
+            "--candidates", "fibonacci:300", "--k", "3"]
+    assert main([*args, "--out", str(tmp_path / "serial")]) == 0
+    assert main([*args, "--ray", "--out", str(tmp_path / "ray")]) == 0
+    serial, ray = _read(tmp_path / "serial"), _read(tmp_path / "ray")
+    assert serial["recommended"] == ray["recommended"] and len(ray["all"]) == 300
+    assert [c["mi"] for c in serial["all"]] == [c["mi"] for c in ray["all"]]
