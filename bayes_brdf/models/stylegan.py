@@ -107,6 +107,59 @@ def upsample_maps(x: Tensor) -> Tensor:
     return _blur(up.reshape(n, c, 2 * h, 2 * w), (2, 1), 4.0)
 
 
+_KERNELS: dict = {}
+
+
+def _fir_kernel(c: int, like: Tensor) -> Tensor:
+    """The 2-D [1, 3, 3, 1]² filter, normalised (sum 1), as a depthwise weight ``[c, 1, 4, 4]`` (cached)."""
+    key = (c, like.dtype, str(like.device))
+    k = _KERNELS.get(key)
+    if k is None:
+        f = torch.tensor([1.0, 3.0, 3.0, 1.0], dtype=torch.float64) / 8
+        k = _KERNELS[key] = torch.outer(f, f).to(like).reshape(1, 1, 4, 4).expand(c, 1, 4, 4).contiguous()
+    return k
+
+
+def _upsample_maps_fast(x: Tensor) -> Tensor:
+    """:func:`upsample_maps` as one depthwise stride-2 transposed convolution (zero insertion, padding ``(2, 1)``
+    and the symmetric 4-tap filter are the transposed convolution's ``padding = 1``); gain 4 on the kernel."""
+    return F.conv_transpose2d(x, _fir_kernel(x.shape[1], x) * 4.0, stride=2, padding=1, groups=x.shape[1])
+
+
+class _Epilogue(torch.autograd.Function):
+    """``lrelu(y d + noise + b)`` (``act``; else without the lrelu) with ``d [n, C, 1, 1]``, ``noise [n, 1, H, W]``
+    or None, ``b [1, C, 1, 1]``: three passes over ``y``'s size forward (the result written once, then updated in
+    place), and a backward that computes only the gradients asked for (autograd's chain of ``mul``, ``add``
+    and ``leaky_relu`` allocates a tensor per step each way)."""
+
+    @staticmethod
+    def forward(ctx, y, d, noise, b, act):
+        out = torch.empty_like(y)
+        if noise is None:
+            torch.mul(y, d, out=out)
+        else:
+            torch.addcmul(noise, y, d, out=out)
+        out.add_(b)
+        if act:
+            F.leaky_relu_(out, 0.2)
+        ctx.act = act
+        ctx.save_for_backward(y, d, out if act else None)
+        return out
+
+    @staticmethod
+    def backward(ctx, g):
+        y, d, out = ctx.saved_tensors
+        gp = torch.ops.aten.leaky_relu_backward(g, out, 0.2, True) if ctx.act else g
+        need = ctx.needs_input_grad
+        gy = gp * d if need[0] else None
+        gd = (gp * y).sum((2, 3), keepdim=True) if need[1] else None
+        if gd is not None and gd.shape != d.shape:
+            gd = gd.sum(0, keepdim=True)
+        gn = gp.sum(1, keepdim=True) if need[2] else None
+        gb = gp.sum((0, 2, 3), keepdim=True) if need[3] else None
+        return gy, gd, gn, gb, None
+
+
 class Dense(nn.Module):
     """A fully connected layer with run-time weight scaling: ``(x W^T / sqrt(in)) lr + b lr + bias_init``."""
 
@@ -155,10 +208,35 @@ class ModConv(nn.Module):
         self.scale = 1 / math.sqrt(c_in * k * k)
 
     def forward(self, x: Tensor, w: Tensor, noise: Tensor | None = None) -> Tensor:
-        # StyleGAN2's modulation and demodulation, computed unfused: scaling the input channels by the style,
-        # convolving with the shared weight, then scaling the output channels by the demodulation factor is the
-        # same linear map as convolving with the per-sample modulated weight, and one batched convolution is
-        # several times faster on a CPU than n grouped ones
+        """The layer on a channels-last ``x``, with as few passes over the activations as the algebra allows.
+
+        The same linear map as :meth:`reference` (StyleGAN2's modulation and demodulation, computed unfused:
+        scaling the input channels by the style, convolving with the shared weight, then scaling the output
+        channels by the demodulation factor; one batched convolution is several times faster on a CPU than
+        n grouped ones), regrouped: the demodulation, the FIR filter's gain and the activation's ``sqrt 2``
+        (``lrelu(a y) = a lrelu(y)`` for ``a > 0``) are one per-channel factor applied with the noise and the
+        bias in one pass (:class:`_Epilogue`); the FIR filter after the upsampling is one depthwise 4×4
+        convolution with its padding (on channels-last memory that is faster than two 1-D ones).
+        """
+        s = self.style(w)                                                         # [n, in]
+        wt = self.weight * self.scale                                             # [out, in, k, k]
+        gain = 2.0 ** 0.5 if self.act else 1.0
+        y = x * s[:, :, None, None]
+        if self.up:
+            y = F.conv_transpose2d(y, wt.flip(2, 3).transpose(0, 1), stride=2)
+            y = F.conv2d(y, _fir_kernel(y.shape[1], y), padding=1, groups=y.shape[1])
+        else:
+            y = F.conv2d(y, wt, padding=self.k // 2)
+        y_gain = gain * 4.0 if self.up else gain                                 # the FIR filter's gain too
+        if self.demod:    # 1 / |modulated weight| per sample and output channel
+            d = torch.rsqrt((s * s) @ wt.pow(2).sum((2, 3)).T + 1e-8) * y_gain   # [n, out]
+        else:
+            d = s.new_full((1, wt.shape[0]), y_gain)
+        nz = noise * (self.noise_strength * gain) if self.noise_strength is not None and noise is not None else None
+        return _Epilogue.apply(y, d[:, :, None, None], nz, (self.bias * gain)[None, :, None, None], self.act)
+
+    def reference(self, x: Tensor, w: Tensor, noise: Tensor | None = None) -> Tensor:
+        """The layer written straightforwardly (the definition :meth:`forward` is tested against)."""
         s = self.style(w)                                                         # [n, in]
         wt = self.weight * self.scale                                             # [out, in, k, k]
         y_in = x * s[:, :, None, None]
@@ -195,13 +273,29 @@ class Synthesis(nn.Module):
         self.layers, self.outputs = nn.ModuleList(layers), nn.ModuleList(outputs)
 
     def forward(self, ws: Tensor, noise: list[Tensor]) -> Tensor:
+        """Computed channels-last (what the CPU's convolutions are fastest on); returns a contiguous tensor."""
         n = ws.shape[0]
-        x = self.const.expand(n, -1, -1, -1)
+        x = self.const.expand(n, -1, -1, -1).contiguous(memory_format=torch.channels_last)
         img = None
         for i, layer in enumerate(self.layers):
             x = layer(x, ws[:, i], noise[i])
             if i % 2 == 0:                    # the end of a resolution block: its to-maps output
                 y = self.outputs[i // 2](x, ws[:, i + 1])
+                if img is None:
+                    img = y
+                else:
+                    img = _upsample_maps_fast(img) + y
+        return img.contiguous()
+
+    def reference(self, ws: Tensor, noise: list[Tensor]) -> Tensor:
+        """The synthesis written straightforwardly (:meth:`ModConv.reference`, :func:`upsample_maps`)."""
+        n = ws.shape[0]
+        x = self.const.expand(n, -1, -1, -1)
+        img = None
+        for i, layer in enumerate(self.layers):
+            x = layer.reference(x, ws[:, i], noise[i])
+            if i % 2 == 0:                    # the end of a resolution block: its to-maps output
+                y = self.outputs[i // 2].reference(x, ws[:, i + 1])
                 img = y if img is None else upsample_maps(img) + y
         return img
 

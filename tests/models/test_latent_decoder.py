@@ -223,3 +223,61 @@ def test_every_sampler_runs_on_the_latent_decoder():
             post = bb.infer(decoder, obs, name, particles=4, seed=0, progress=False, map_steps=0, **kw)
         assert torch.isfinite(post.energies).all(), name
         assert set(post.std()) == {"albedo", "roughness", "specular", "normal"}, name
+
+
+# ---------------------------------------------------------------------- the generator's fast path
+def _generator_grads(g, impl, n=3, seed=0):
+    """The synthesis ``impl`` on seeded W+ and noise: its output and the gradients of a weighted sum of it with
+    respect to W+, the noise maps and every parameter that requires one."""
+    gen = torch.Generator().manual_seed(seed)
+    p = g.synthesis.const
+    w = (g.w_avg + 0.5 * torch.randn(n, g.num_ws, g.cfg.w_dim, generator=gen, dtype=torch.float64).to(p))
+    w.requires_grad_(True)
+    noise = [torch.randn(n, 1, *s, generator=gen, dtype=torch.float64).to(p).requires_grad_(True)
+             for s in g.noise_shapes()]
+    y = impl(w, noise)
+    wy = 1 + 0.5 * torch.cos(torch.arange(y.numel(), dtype=torch.float64)).reshape(y.shape).to(y)
+    params = [q for q in g.synthesis.parameters() if q.requires_grad]
+    grads = torch.autograd.grad((y * wy).sum(), [w, *noise, *params])
+    return [y.detach(), *grads]
+
+
+def test_fast_synthesis_is_the_reference_one_in_float64(decoder):
+    """The model's synthesis (channels-last, regrouped factors, one-pass epilogue, 4x4 FIR) is the same map as the
+    straightforward one, forward and backward (float64: no rounding, no leaky-ReLU kink flips)."""
+    import copy
+    g = copy.deepcopy(decoder.generator).double()
+    fast, ref = _generator_grads(g, g.synthesis), _generator_grads(g, g.synthesis.reference)
+    assert fast[0].is_contiguous() and fast[0].shape == ref[0].shape
+    for a, b in zip(fast, ref):
+        torch.testing.assert_close(a, b, rtol=1e-10, atol=1e-12 * float(b.abs().max()))
+
+
+def test_fast_synthesis_trains_like_the_reference():
+    """Weights that require gradients (training): the same parameter gradients, float64, random weights with a
+    nonzero noise strength and bias (the trained file's noise strengths could hide a wrong one)."""
+    from bayes_brdf.models.stylegan import Generator, GeneratorConfig
+    torch.manual_seed(0)
+    g = Generator(GeneratorConfig(resolution=16, w_dim=8, z_dim=8, mapping_layers=2, fmaps_base=64,
+                                  fmaps_max=8)).double()
+    with torch.no_grad():
+        for name, q in g.named_parameters():
+            if name.endswith("noise_strength") or name.endswith("bias"):
+                q.copy_(0.3 * torch.randn(q.shape, dtype=q.dtype))
+    fast, ref = _generator_grads(g, g.synthesis, n=2), _generator_grads(g, g.synthesis.reference, n=2)
+    assert len(fast) > 1 + g.num_ws + len(g.noise_shapes())
+    for a, b in zip(fast, ref):
+        torch.testing.assert_close(a, b, rtol=1e-10, atol=1e-12 * float(b.abs().max()))
+
+
+def test_fast_synthesis_in_float32_is_the_reference_to_rounding(decoder):
+    """float32 (what a fit runs): the maps to ~1e-6 of their range, the energy's gradient over W+ to 1e-4 in norm
+    (one leaky-ReLU input that rounds across zero moves a few gradient entries; float64 above is exact)."""
+    import copy
+    g = decoder.generator
+    g64 = copy.deepcopy(g).double()
+    fast, ref, exact = (_generator_grads(g, g.synthesis), _generator_grads(g, g.synthesis.reference),
+                        _generator_grads(g64, g64.synthesis.reference))
+    rel = lambda a, b: float((a.double() - b).norm() / b.norm())  # noqa: E731
+    assert rel(fast[0], exact[0]) < 1e-5 and rel(ref[0], exact[0]) < 1e-5
+    assert rel(fast[1], exact[1]) < 1e-4
