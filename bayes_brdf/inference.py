@@ -26,6 +26,20 @@ from .noise_estimate import with_render_noise
 
 #: ``steps="auto"`` runs at most this many times the preset's steps
 AUTO_STEPS_CAP = 4
+#: ``steps="auto"`` first runs this fraction of the preset's steps (its annealing over them), then half as many
+#: again each time until the convergence checks pass
+AUTO_FIRST = 0.25
+
+
+def auto_steps(preset_steps: int) -> tuple[int, int]:
+    """``(first, cap)`` of a ``steps="auto"`` run for a preset of ``preset_steps``: the first horizon (at least
+    200 steps) and the most it may run.
+
+    Example:
+        >>> auto_steps(2000)
+        (500, 8000)
+    """
+    return max(200, round(AUTO_FIRST * preset_steps)), AUTO_STEPS_CAP * preset_steps
 #: under ``pixel_noise = "signal"``, the fraction of the run sampled with one noise scale before its shape is
 #: estimated (SPOS's annealing is over at 38 % of a run)
 NOISE_BURNIN = 0.4
@@ -118,8 +132,10 @@ def infer(model: "Callable | str | dict", observations: "Observations | ModelDat
         sampler: a name, a preset path (``samplers/*.toml``), a table or a :class:`Sampler`.
         seed: same seed, same result.
         particles: override the preset's particle count.
-        steps: override the preset's step count; ``"auto"``: the preset's, then half as many again until
-            the convergence checks pass, at most four times the preset's (:data:`AUTO_STEPS_CAP`).
+        steps: override the preset's step count (a fixed run); ``"auto"``: a quarter of the preset's
+            (:func:`auto_steps`), then half as many again until the convergence checks pass, at most four times
+            the preset's (:data:`AUTO_STEPS_CAP`); ``None``: the preset's choice (``[run] auto_steps = true``,
+            as the default ``spos`` preset has: ``"auto"``; else its fixed steps).
         params: override the preset's hyper-parameters.
         checkpoint: a file to checkpoint to and resume from.
         progress: show a progress bar (default: when stderr is a terminal).
@@ -159,13 +175,14 @@ def infer(model: "Callable | str | dict", observations: "Observations | ModelDat
     smp, cfg = make_sampler(sampler, params=params,
                             run={k: v for k, v in (("particles", particles), ("steps", None if auto else steps))
                                  if v is not None})
+    auto = auto or (steps is None and cfg.auto_steps)        # the preset's default (spos: auto_steps = true)
     data = with_render_noise(model, data, estimated=signal_noise(model, smp))
     pot = Potential(model, (data,))
     if progress is None:
         progress = sys.stderr.isatty()
     kw = cfg.run_kwargs()
     if auto:
-        kw["max_steps"] = AUTO_STEPS_CAP * kw["steps"]
+        kw["steps"], kw["max_steps"] = auto_steps(kw["steps"])
     if z0 is not None:
         z0 = torch.as_tensor(z0, dtype=dtype, device=data.device)
         if z0.dim() != 2 or z0.shape[1] != pot.dim:

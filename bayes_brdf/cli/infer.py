@@ -28,8 +28,8 @@ def add_sampling_args(f, default_out: str, many: bool = False):
     f.add_argument("--particles", type=particles_arg, default=None,
                    help="override the preset's particle count (at least 2)")
     f.add_argument("--steps", type=steps_arg, default=None,
-                   help="override the preset's step count, or 'auto': run until the convergence checks pass "
-                        "(at most 4x the preset's)")
+                   help="a fixed step count, or 'auto': a quarter of the preset's steps, then more until the "
+                        "convergence checks pass, at most 4x the preset's (default: the preset's choice; spos: auto)")
     f.add_argument("--param", type=key_value, action="append", default=[], metavar="KEY=VALUE",
                    help="override a sampler hyper-parameter, e.g. step_size=0.02 (repeatable)")
     f.add_argument("--model-param", type=key_value, action="append", default=[], metavar="KEY=VALUE",

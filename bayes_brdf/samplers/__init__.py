@@ -45,6 +45,8 @@ class RunConfig:
     minibatch_views: int = 0        # 0: all views every step
     minibatch_pixels: float = 1.0   # fraction of pixels per step (1: all)
     init_margin: float = 0.0        # keep prior draws this fraction of each bounded range off its bounds
+    auto_steps: bool = False        # bb.infer with no steps given runs steps="auto" (a quarter of steps, then more
+    #                                 until the convergence checks pass, at most 4 x steps); a number given: fixed
 
     def __post_init__(self):
         for k in ("particles", "steps"):
@@ -62,6 +64,8 @@ class RunConfig:
         if isinstance(self.init_margin, bool) or not isinstance(self.init_margin, (int, float)) \
                 or not 0 <= self.init_margin < 0.5:
             raise InputError(f"run.init_margin must be in [0, 0.5), got {self.init_margin!r}")
+        if not isinstance(self.auto_steps, bool):
+            raise InputError(f"run.auto_steps must be true or false, got {self.auto_steps!r}")
 
     def run_kwargs(self) -> dict:
         return {"particles": self.particles, "steps": self.steps, "checkpoint_every": self.checkpoint_every,
