@@ -41,3 +41,20 @@ def test_draws_depend_on_the_generator_state_only():
     g = torch.Generator().manual_seed(3)
     first, second = standard_normal((64,), g, torch.float32), standard_normal((64,), g, torch.float32)
     assert not torch.equal(first, second)                 # the generator's state advances
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_native_kernel_equals_the_torch_reference(monkeypatch, dtype):
+    """The C kernel against ``philox_normal`` (plain torch: the path on CUDA and without a compiler), for seeds
+    whose words exercise the 64-bit products' wrap-around; through ``standard_normal`` either way."""
+    import bayes_brdf.samplers.numerics as N
+
+    tol = 2e-6 if dtype == torch.float32 else 1e-12
+    for seed in (0, 1, 2**32 - 1, 123456789012345, 2**63 - 2):
+        out = torch.empty(4099, dtype=dtype)
+        N._native_normal(dtype)(seed, out.numel(), 2, out.data_ptr())
+        torch.testing.assert_close(out, N.philox_normal(seed, (4099,), dtype), rtol=tol, atol=tol)
+    native = standard_normal((3, 5, 7), torch.Generator().manual_seed(9), dtype)
+    monkeypatch.setattr(N, "_native_normal", lambda dt: None)
+    plain = standard_normal((3, 5, 7), torch.Generator().manual_seed(9), dtype)
+    torch.testing.assert_close(native, plain, rtol=tol, atol=tol)
