@@ -121,9 +121,11 @@ class Prior:
     def distribution(self, shape, low: float, high: float, *, dtype=None, device=None):
         """The distribution of a whole parameter of ``shape`` (all dims are event dims)."""
         kw = dict(dtype=dtype or torch.get_default_dtype(), device=device)
+        if self.kind == "uniform":     # scalar bounds expanded, the constant log-density from one log (every model run)
+            lo, hi = torch.tensor(float(low), **kw).expand(tuple(shape)), torch.tensor(float(high), **kw).expand(tuple(shape))
+            logc = torch.tensor(-math.prod(shape) * math.log(float(high) - float(low)), **kw)
+            return Box(lo, hi, event_dims=len(shape), _logc=logc)
         lo, hi = torch.full(tuple(shape), float(low), **kw), torch.full(tuple(shape), float(high), **kw)
-        if self.kind == "uniform":
-            return Box(lo, hi, event_dims=len(shape))
         d = TruncatedNormal(torch.full_like(lo, self.mean), torch.full_like(lo, self.std), lo, hi)
         return d.to_event(len(shape))
 
