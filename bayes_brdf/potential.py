@@ -37,6 +37,7 @@ from torch import Tensor
 from torch.distributions import biject_to
 
 from .errors import InputError
+from .render.native import ptr
 
 
 @dataclass(frozen=True)
@@ -61,16 +62,12 @@ def _interval_kernels(u: Tensor):
     if u.device.type != "cpu":
         return None
     from .render.native import native_function
-    i64, dbl, ptr = ctypes.c_int64, ctypes.c_double, ctypes.c_void_p
-    fwd = native_function(_INTERVAL_SRC, "bb_interval_fwd", u.dtype, [i64, i64, i64, dbl, dbl, i64] + [ptr] * 4,
+    i64, dbl, vp = ctypes.c_int64, ctypes.c_double, ctypes.c_void_p
+    fwd = native_function(_INTERVAL_SRC, "bb_interval_fwd", u.dtype, [i64, i64, i64, dbl, dbl, i64] + [vp] * 4,
                           extra_flags=("-ffast-math",))
-    bwd = native_function(_INTERVAL_SRC, "bb_interval_bwd", u.dtype, [i64, i64, dbl, i64] + [ptr] * 4,
+    bwd = native_function(_INTERVAL_SRC, "bb_interval_bwd", u.dtype, [i64, i64, dbl, i64] + [vp] * 4,
                           extra_flags=("-ffast-math",))
     return None if fwd is None or bwd is None else (fwd, bwd)
-
-
-def _p(t: Tensor | None):
-    return None if t is None else ctypes.c_void_p(t.data_ptr())
 
 
 class _IntervalFn(torch.autograd.Function):
@@ -88,7 +85,7 @@ class _IntervalFn(torch.autograd.Function):
             x = torch.empty(u.shape, dtype=u.dtype)
             s = torch.empty(u.shape, dtype=u.dtype)
             ladj = torch.empty(n, dtype=torch.float64)
-            k[0](n, m, u.stride(0) if n > 1 else m, float(lo), float(hi - lo), torch.get_num_threads(), _p(u), _p(x), _p(s), _p(ladj))
+            k[0](n, m, u.stride(0) if n > 1 else m, float(lo), float(hi - lo), torch.get_num_threads(), *map(ptr, (u, x, s, ladj)))
             ctx.save_for_backward(s)
             ctx.native = k[1]
             return x, ladj.to(u.dtype)
@@ -108,8 +105,7 @@ class _IntervalFn(torch.autograd.Function):
             g = torch.empty_like(s)
             gx = None if gx is None else gx.to(s.dtype).contiguous()
             gl = None if gl is None else gl.to(s.dtype).contiguous()
-            ctx.native(s.shape[0], s[0].numel(), float(ctx.width), torch.get_num_threads(), _p(s), _p(gx), _p(gl),
-                       _p(g))
+            ctx.native(s.shape[0], s[0].numel(), float(ctx.width), torch.get_num_threads(), *map(ptr, (s, gx, gl, g)))
             return g, None, None
         shape = (-1,) + (1,) * (s.dim() - 1)
         g = None

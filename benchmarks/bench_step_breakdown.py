@@ -35,6 +35,7 @@ from bench_samplers import make_data
 from bayes_brdf.memory import keep_freed_memory
 from bayes_brdf.models import per_texel
 from bayes_brdf.potential import Potential
+from bayes_brdf.render.native import ptr
 from bayes_brdf.samplers import make_sampler
 from bayes_brdf.samplers.kernels import rbf_matrix
 from bayes_brdf.samplers.numerics import standard_normal
@@ -91,7 +92,7 @@ def main(argv=None):
         g = pot.value_and_grad(z)[1]
         noise = standard_normal(z.shape, rng, z.dtype)
         out, v1, v2 = torch.empty_like(z), torch.empty_like(state.precond.v), torch.empty_like(state.precond.v)
-        args = [1, a.particles, z.shape[1], torch.get_num_threads(), *(S._ptr(t) for t in (
+        args = [1, a.particles, z.shape[1], torch.get_num_threads(), *(ptr(t) for t in (
             z, g, noise, K.contiguous(), ks, c2h, state.precond.v, state.precond_noise.v, out, v1, v2)),
             1, 0, 0, 1, 1.0, 1.0, 1e-8, 0.99, 0.5, 0.5, 0.05, 1e-3]
         rows["update"] = med(lambda: S._native_update(z.dtype)(*args), a.repeats)

@@ -129,7 +129,8 @@ def available(t: Tensor, texels: bool = False) -> bool:
     return t.device.type == "cpu" and (_texel_lib if texels else _lib)(t.dtype) is not None
 
 
-def _ptr(t: Tensor | None):
+def ptr(t: Tensor | None):
+    """A tensor's data as a C pointer argument (``None``: NULL), for the package's native functions."""
     return None if t is None else ctypes.c_void_p(t.data_ptr())
 
 
@@ -154,7 +155,7 @@ def _call(mode, maps, geo, ks_factor, *, y=None, wgt=None, gout=None, l2=False, 
         epart = torch.empty(n, nb, dtype=torch.float64) if mode == MODE_LOSS else None
         grads = [torch.empty_like(m) for m in maps] if grad else [None, None, None]
         _lib(dt)(mode, n, V, L, P, int(ks_factor), int(l2), int(need_grad), nt,
-                 *map(_ptr, (kd, r, ks, nl, nv, nh2, w, amp, y, wgt, gout, out, epart, *grads)))
+                 *map(ptr, (kd, r, ks, nl, nv, nh2, w, amp, y, wgt, gout, out, epart, *grads)))
         return out, epart, grads
     T = max(m.shape[-1] for m in maps)
     flags = sum(1 << k for k, m in enumerate(maps) if m.shape[-1] == 1 and T > 1) + \
@@ -164,7 +165,7 @@ def _call(mode, maps, geo, ks_factor, *, y=None, wgt=None, gout=None, l2=False, 
     grads = [(torch.zeros_like if f else torch.empty_like)(m) for m, f in zip(maps, no_grad)] if grad \
         else [None, None, None]
     status = _texel_lib(dt)(mode, n, V, L, P, int(ks_factor), int(l2), int(need_grad), nt, T, flags, plan.nchunk,
-                            *map(_ptr, (taps.idx, taps.w, plan.cstart, plan.uoff, plan.lidx, plan.rptr, plan.rsrc,
+                            *map(ptr, (taps.idx, taps.w, plan.cstart, plan.uoff, plan.lidx, plan.rptr, plan.rsrc,
                                         kd, r, ks, nl, nv, nh2, w, amp, y, wgt, gout, out, epart, *grads, env)),
                             transfer.NODES, transfer.T0, transfer.DT)
     if status:

@@ -70,6 +70,7 @@ import torch
 from torch import Tensor
 
 from ..errors import InputError
+from ..render.native import native_function, ptr
 from .base import Info, Sampler
 from .diagnostics import LOW_DIM
 from .config import Configurable
@@ -196,7 +197,7 @@ class SPOS(Configurable, Sampler):
         c = pc.count + 1
         cn = pn.count + 1
         _native_update(z.dtype)(
-            groups, n, D, torch.get_num_threads(), *map(_ptr, (zc, gc, noise, K.contiguous(), ks, c2h, pc.v, pn.v,
+            groups, n, D, torch.get_num_threads(), *map(ptr, (zc, gc, noise, K.contiguous(), ks, c2h, pc.v, pn.v,
                                                                z_new, v_new, vn_new)),
             int(adam), int(self.per_particle(D)),
             int(noise_pc), int(self.step_units == "spread"), float(gam), float(beta), float(eps),
@@ -215,14 +216,9 @@ NATIVE_MAX_PARTICLES = 64     # NMAX of _native_spos.c: particles per group in t
 def _native_update(dtype):
     """The fused native SPOS update for ``dtype`` (float32/float64), or ``None`` (no compiler,
     ``BAYES_BRDF_NO_NATIVE``): then the torch update runs."""
-    from ..render.native import native_function
-    i64, dbl, ptr = ctypes.c_int64, ctypes.c_double, ctypes.c_void_p
+    i64, dbl, vp = ctypes.c_int64, ctypes.c_double, ctypes.c_void_p
     return native_function(Path(__file__).parent / "_native_spos.c", "bb_spos_update", dtype,
-                           [i64] * 4 + [ptr] * 11 + [i64] * 4 + [dbl] * 8)
-
-
-def _ptr(t: Tensor):
-    return ctypes.c_void_p(t.data_ptr())
+                           [i64] * 4 + [vp] * 11 + [i64] * 4 + [dbl] * 8)
 
 
 def _spread_step(zg: Tensor, step: float, floor: float) -> tuple[Tensor, Tensor | None]:
