@@ -257,11 +257,18 @@ def update(posterior: Posterior, observations: "Observations | ModelData", sampl
     if posterior.z is None or posterior.model is None:
         raise InputError("this posterior has no particles or no model to start from",
                          fix="use a posterior written by bb.infer or by fit/infer/recommend (posterior.safetensors)")
-    p = {"anneal": False} if _anneals(sampler) else {}
-    return infer(posterior.model, observations, sampler, steps=steps, params={**p, **(params or {})}, seed=seed,
+    return infer(posterior.model, observations, sampler, steps=steps, params=warm_params(sampler, params), seed=seed,
                  z0=posterior.z, **kw)
 
 
-def _anneals(sampler) -> bool:
-    """Whether ``sampler`` (a name, a preset file, a table or a sampler) has an ``anneal`` option (SPOS, SVGD)."""
-    return hasattr(make_sampler(sampler)[0], "anneal")
+def warm_params(sampler, params: dict | None = None) -> dict:
+    """The sampler overrides of a warm start (:func:`update`, ``recommend --from``): ``params`` with
+    ``anneal = false`` when ``sampler`` (a name, a preset file, a table or a sampler) anneals (SPOS, SVGD) and
+    ``params`` does not say otherwise.
+
+    Example:
+        >>> warm_params("spos"), warm_params("emcee"), warm_params("spos", {"anneal": True})
+        ({'anneal': False}, {}, {'anneal': True})
+    """
+    anneals = hasattr(make_sampler(sampler)[0], "anneal")
+    return {**({"anneal": False} if anneals else {}), **(params or {})}

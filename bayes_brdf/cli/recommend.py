@@ -144,17 +144,21 @@ def _candidates(spec: str, full, fitted, light: str = "capture", flash_power=Non
 
 
 def run(a) -> int:
+    from ..guidance.scores import parse_noise_var
+
+    nv = parse_noise_var(a.noise_var)           # checked before any fitting
+    with executor_of_args(a) as ex:             # Ray missing or a cluster out of reach: one line before the fit
+        return _run(a, nv, ex)
+
+
+def _run(a, nv, ex) -> int:
     from ..errors import InputError
     from ..executor import score_candidates
     from ..guidance import recommend
-    from ..guidance.scores import parse_noise_var
     from ..io.outputs import write_json
     from ..plots import plot_candidates
     from ..posterior import Posterior
 
-    nv = parse_noise_var(a.noise_var)           # checked before any fitting
-    if a.ray or a.ray_address:
-        executor_of_args(a).close()             # Ray missing or a cluster out of reach: one line before the fit
     t0 = time.perf_counter()
     prev = _earlier_posterior(a) if a.from_run else None
     obs, full, out = load(a, "recommend", full=True)
@@ -177,9 +181,8 @@ def run(a) -> int:
     t_fit = time.perf_counter() - t0
     scores = None
     if a.method in ("mi", "std"):    # in shards of candidates, in this process or on Ray: the same numbers
-        with executor_of_args(a) as ex:
-            scores = score_candidates(post, cands, full.surface, executor=ex, estimator=a.estimator, seed=a.seed,
-                                      noise_var=nv)
+        scores = score_candidates(post, cands, full.surface, executor=ex, estimator=a.estimator, seed=a.seed,
+                                  noise_var=nv)
     rec = recommend(post, cands, a.k, method=a.method, radius=a.radius, surface=full.surface, seed=a.seed,
                     scores=scores, offset=len(fitted))
     result = {"capture": str(a.capture), "fitted_views": fitted, "candidates": a.candidates, "method": a.method,
@@ -213,7 +216,7 @@ def _earlier_posterior(a):
     """The posterior of ``--from RUN`` (a run folder or its ``posterior.safetensors``), checked before any work;
     sets the warm start's run length and switches annealing off in ``a``."""
     from ..errors import InputError
-    from ..inference import WARM_STEPS
+    from ..inference import WARM_STEPS, warm_params
     from ..posterior import Posterior
 
     if a.posterior:
@@ -231,8 +234,7 @@ def _earlier_posterior(a):
     if a.warm_steps is not None and a.steps is not None and a.warm_steps != a.steps:
         raise InputError(f"--warm-steps {a.warm_steps} and --steps {a.steps} disagree", fix="give one of them")
     a.steps = a.steps or a.warm_steps or WARM_STEPS
-    if not any(k == "anneal" for k, _ in a.param) and (a.sampler or "spos") in ("spos", "svgd"):
-        a.param = [("anneal", False), *a.param]      # as bb.inference.update: from a posterior, no annealing
+    a.param = list(warm_params(a.sampler or "spos", dict(a.param)).items())   # as bb.inference.update
     return prev
 
 
