@@ -34,7 +34,6 @@
 
 #include "_native_brdf.h"
 
-#define LOG(x) (sizeof(REAL) == sizeof(float) ? logf((float)(x)) : log((double)(x)))
 #define LANES 8 /* particles per vector (AVX2 floats; doubles take two registers) */
 #define LMAX 4  /* lights per view (the caller checks) */
 #define TILE 16 /* texels per step of the layout passes */
@@ -72,35 +71,99 @@ struct targs {
     double t0, dt;     /* roughness node k at log r = t0 + k dt */
 };
 
-/* Catmull-Rom in log r of the environment's tables at the lanes' roughness: values and d/dr of a, b */
+#define BB_CAT_(a, b) a##b
+#define BB_CAT(a, b) BB_CAT_(a, b)
+#define BB_IS_DOUBLE_double 1
+#define BB_IS_DOUBLE_float 0
+#if BB_CAT(BB_IS_DOUBLE_, REAL)
+typedef int64_t ireal;   /* an integer as wide as REAL */
+#define MANT 52
+#define EBIAS 1023
+#else
+typedef int32_t ireal;
+#define MANT 23
+#define EBIAS 127
+#endif
+typedef ireal ivec __attribute__((vector_size(LANES * sizeof(ireal))));   /* a comparison's mask of vecs */
+
+static inline vec vsel(ivec m, vec a, vec b) { return (vec)((m & (ivec)a) | (~m & (ivec)b)); }
+
+/* log(x) of every lane, for normal x > 0, branch-free: x = m 2^e with m in [sqrt(1/2), sqrt(2)),
+ * log m = 2 atanh(s), s = (m - 1) / (m + 1), |s| < 0.172, summed to s^21 (below double's rounding).
+ * Within 3 ulp of libm's log / logf. */
+static inline vec vlog(vec x)
+{
+    ivec bits = (ivec)x;
+    ivec e = (bits >> MANT) - EBIAS;
+    vec m = (vec)((bits & (((ireal)1 << MANT) - 1)) | ((ireal)EBIAS << MANT));
+    const ivec big = m > (REAL)1.4142135623730951;
+    m = vsel(big, m * (REAL)0.5, m);
+    e -= big;   /* a true mask is -1 */
+    const vec s = (m - 1) / (m + 1), s2 = s * s;
+    vec p = s2 * (REAL)(1.0 / 21) + (REAL)(1.0 / 19);
+    p = p * s2 + (REAL)(1.0 / 17); p = p * s2 + (REAL)(1.0 / 15); p = p * s2 + (REAL)(1.0 / 13);
+    p = p * s2 + (REAL)(1.0 / 11); p = p * s2 + (REAL)(1.0 / 9); p = p * s2 + (REAL)(1.0 / 7);
+    p = p * s2 + (REAL)(1.0 / 5); p = p * s2 + (REAL)(1.0 / 3); p = p * s2 + 1;
+    return __builtin_convertvector(e, vec) * (REAL)0.6931471805599453 + 2 * s * p;
+}
+
+/* The rows r[0..7] of an 8 x 8 block become its columns (three rounds of two-vector shuffles) */
+_Static_assert(LANES == 8, "transpose8 is written for 8 lanes");
+#if defined(__clang__)
+#define SHUF(a, b, ...) __builtin_shufflevector(a, b, __VA_ARGS__)
+#else
+#define SHUF(a, b, ...) __builtin_shuffle(a, b, (ivec){__VA_ARGS__})
+#endif
+static inline void transpose8(vec r[8])
+{
+    vec a[8], b[8];
+    for (int i = 0; i < 8; i += 2) {
+        a[i] = SHUF(r[i], r[i + 1], 0, 8, 2, 10, 4, 12, 6, 14);
+        a[i + 1] = SHUF(r[i], r[i + 1], 1, 9, 3, 11, 5, 13, 7, 15);
+    }
+    for (int i = 0; i < 8; i += 4)
+        for (int j = i; j < i + 2; j++) {
+            b[j] = SHUF(a[j], a[j + 2], 0, 1, 8, 9, 4, 5, 12, 13);
+            b[j + 2] = SHUF(a[j], a[j + 2], 2, 3, 10, 11, 6, 7, 14, 15);
+        }
+    for (int j = 0; j < 4; j++) {
+        r[j] = SHUF(b[j], b[j + 4], 0, 1, 2, 3, 8, 9, 10, 11);
+        r[j + 4] = SHUF(b[j], b[j + 4], 4, 5, 6, 7, 12, 13, 14, 15);
+    }
+}
+
+/* Catmull-Rom in log r of the environment's tables at the lanes' roughness: values and d/dr of a, b.
+ * The lanes' nodes and weights are computed as vectors without branches; each lane then combines its 4 slots
+ * (a slot's 6 values load as one vector, rows padded by 2) into a row, and a transpose turns the lanes' rows
+ * into vectors over the lanes. */
 static inline void env_lookup(const struct targs *restrict q, const REAL *restrict ep, const vec rr,
                               vec va[6], vec vd[6])
 {
-    const int64_t N = q->nodes;
-    REAL xa[6][LANES], xd[6][LANES], tt[LANES], dd[LANES];
+    const ireal N = (ireal)q->nodes;
     const REAL t0 = (REAL)q->t0, idt = (REAL)(1.0 / q->dt), top = (REAL)(N - 1);
-#pragma omp simd
-    for (int i = 0; i < LANES; i++) {   /* node coordinate of every lane at once (a vector log) */
-        const REAL r = rr[i] > (REAL)1e-30 ? rr[i] : (REAL)1e-30;
-        const REAL t = (LOG(r) - t0) * idt;
-        tt[i] = t <= 0 ? 0 : (t >= top ? top : t);
-        dd[i] = (t <= 0 || t >= top) ? 0 : idt / r;
-    }
-    for (int i = 0; i < LANES; i++) {   /* one lane: its 4 slots as vectors over the 6 values (rows padded by 2) */
-        const REAL t = tt[i], ds = dd[i];
-        int64_t k = (int64_t)t;
-        if (k > N - 2) k = N - 2;
-        const REAL x = t - (REAL)k, x2 = x * x, x3 = x2 * x;
-        const REAL w0 = (REAL)0.5 * (-x + 2 * x2 - x3), w1 = (REAL)0.5 * (2 - 5 * x2 + 3 * x3),
-                   w2 = (REAL)0.5 * (x + 4 * x2 - 3 * x3), w3 = (REAL)0.5 * (x3 - x2);
-        const REAL d0 = (REAL)0.5 * (-1 + 4 * x - 3 * x2) * ds, d1 = (REAL)0.5 * (-10 * x + 9 * x2) * ds,
-                   d2 = (REAL)0.5 * (1 + 8 * x - 9 * x2) * ds, d3 = (REAL)0.5 * (3 * x2 - 2 * x) * ds;
-        const REAL *tb = ep + 3 + k * 6;
+    const vec zero = {0}, r = vsel(rr > (REAL)1e-30, rr, zero + (REAL)1e-30);
+    const vec tr = (vlog(r) - t0) * idt;
+    const ivec lo = tr <= 0, hi = tr >= top;
+    const vec t = vsel(lo, zero, vsel(hi, zero + top, tr)), ds = vsel(lo | hi, zero, idt / r);
+    ivec k = __builtin_convertvector(t, ivec);
+    const ivec top_k = k - k + (N - 2);
+    const ivec over = k > top_k;
+    k = (over & top_k) | (~over & k);
+    const vec x = t - __builtin_convertvector(k, vec), x2 = x * x, x3 = x2 * x;
+    const vec w0 = (REAL)0.5 * (-x + 2 * x2 - x3), w1 = (REAL)0.5 * (2 - 5 * x2 + 3 * x3),
+              w2 = (REAL)0.5 * (x + 4 * x2 - 3 * x3), w3 = (REAL)0.5 * (x3 - x2);
+    const vec d0 = (REAL)0.5 * (-1 + 4 * x - 3 * x2) * ds, d1 = (REAL)0.5 * (-10 * x + 9 * x2) * ds,
+              d2 = (REAL)0.5 * (1 + 8 * x - 9 * x2) * ds, d3 = (REAL)0.5 * (3 * x2 - 2 * x) * ds;
+    vec rv[8], rd[8];
+    for (int i = 0; i < LANES; i++) {   /* one lane: its 4 slots, as vectors over the 6 values */
+        const REAL *tb = ep + 3 + k[i] * 6;
         const vec f0 = LD(tb), f1 = LD(tb + 6), f2 = LD(tb + 12), f3 = LD(tb + 18);
-        const vec val = w0 * f0 + w1 * f1 + w2 * f2 + w3 * f3, der = d0 * f0 + d1 * f1 + d2 * f2 + d3 * f3;
-        for (int c = 0; c < 6; c++) { xa[c][i] = val[c]; xd[c][i] = der[c]; }
+        rv[i] = w0[i] * f0 + w1[i] * f1 + w2[i] * f2 + w3[i] * f3;
+        rd[i] = d0[i] * f0 + d1[i] * f1 + d2[i] * f2 + d3[i] * f3;
     }
-    for (int c = 0; c < 6; c++) { va[c] = LD(xa[c]); vd[c] = LD(xd[c]); }
+    transpose8(rv);
+    transpose8(rd);
+    for (int c = 0; c < 6; c++) { va[c] = rv[c]; vd[c] = rd[c]; }
 }
 
 static void chunk(const struct targs *restrict q, const int64_t c)
