@@ -6,7 +6,8 @@
  * four texels at a pixel, so with the maps copied texel-major ([T][channel][particle]) a pixel's taps
  * are contiguous vector loads, and its gradients contiguous vector adds, whatever texels it reads.
  * The pixel kernel's lanes are pixels: there a pixel's taps were scalar gathers and scatters, which
- * cost 4-5x the shading itself on a mesh.
+ * cost 4-5x the shading itself on a mesh. LANES particles make a vector: 8, or 16 (built with -DLANES=16;
+ * native.texel_lanes picks it for float32 where vectors are 64 bytes and it takes fewer passes).
  *
  * Determinism: the pixels come in fixed chunks (the caller's plan, independent of the thread count).
  * A chunk adds its gradients into rows of its own, one per texel it touches (`lidx`: each tap's row),
@@ -34,7 +35,12 @@
 
 #include "_native_brdf.h"
 
-#define LANES 8 /* particles per vector (AVX2 floats; doubles take two registers) */
+#ifndef LANES
+#define LANES 8 /* particles per vector: 8 (an AVX2 register of floats), or 16 (-DLANES=16: AVX-512's) */
+#endif
+#if LANES != 8 && LANES != 16
+#error "LANES must be 8 or 16"
+#endif
 #define LMAX 4  /* lights per view (the caller checks) */
 #define TILE 16 /* texels per step of the layout passes */
 #define MODE_IMAGE_FWD 0
@@ -85,6 +91,10 @@ typedef int32_t ireal;
 #define EBIAS 127
 #endif
 typedef ireal ivec __attribute__((vector_size(LANES * sizeof(ireal))));   /* a comparison's mask of vecs */
+typedef REAL vrow __attribute__((vector_size(8 * sizeof(REAL))));          /* a table slot: 6 values, 2 pads */
+typedef REAL vrowu __attribute__((vector_size(8 * sizeof(REAL)), aligned(sizeof(REAL))));
+typedef ireal irow __attribute__((vector_size(8 * sizeof(ireal))));
+#define LDR(p) ((vrow)(*(const vrowu *)(p)))
 
 static inline vec vsel(ivec m, vec a, vec b) { return (vec)((m & (ivec)a) | (~m & (ivec)b)); }
 
@@ -108,15 +118,14 @@ static inline vec vlog(vec x)
 }
 
 /* The rows r[0..7] of an 8 x 8 block become its columns (three rounds of two-vector shuffles) */
-_Static_assert(LANES == 8, "transpose8 is written for 8 lanes");
 #if defined(__clang__)
 #define SHUF(a, b, ...) __builtin_shufflevector(a, b, __VA_ARGS__)
 #else
-#define SHUF(a, b, ...) __builtin_shuffle(a, b, (ivec){__VA_ARGS__})
+#define SHUF(a, b, ...) __builtin_shuffle(a, b, (irow){__VA_ARGS__})
 #endif
-static inline void transpose8(vec r[8])
+static inline void transpose8(vrow r[8])
 {
-    vec a[8], b[8];
+    vrow a[8], b[8];
     for (int i = 0; i < 8; i += 2) {
         a[i] = SHUF(r[i], r[i + 1], 0, 8, 2, 10, 4, 12, 6, 14);
         a[i + 1] = SHUF(r[i], r[i + 1], 1, 9, 3, 11, 5, 13, 7, 15);
@@ -134,8 +143,8 @@ static inline void transpose8(vec r[8])
 
 /* Catmull-Rom in log r of the environment's tables at the lanes' roughness: values and d/dr of a, b.
  * The lanes' nodes and weights are computed as vectors without branches; each lane then combines its 4 slots
- * (a slot's 6 values load as one vector, rows padded by 2) into a row, and a transpose turns the lanes' rows
- * into vectors over the lanes. */
+ * (a slot's 6 values load as one vector, rows padded by 2) into a row, and a transpose per 8 lanes turns the
+ * lanes' rows into vectors over the lanes. */
 static inline void env_lookup(const struct targs *restrict q, const REAL *restrict ep, const vec rr,
                               vec va[6], vec vd[6])
 {
@@ -154,16 +163,22 @@ static inline void env_lookup(const struct targs *restrict q, const REAL *restri
               w2 = (REAL)0.5 * (x + 4 * x2 - 3 * x3), w3 = (REAL)0.5 * (x3 - x2);
     const vec d0 = (REAL)0.5 * (-1 + 4 * x - 3 * x2) * ds, d1 = (REAL)0.5 * (-10 * x + 9 * x2) * ds,
               d2 = (REAL)0.5 * (1 + 8 * x - 9 * x2) * ds, d3 = (REAL)0.5 * (3 * x2 - 2 * x) * ds;
-    vec rv[8], rd[8];
-    for (int i = 0; i < LANES; i++) {   /* one lane: its 4 slots, as vectors over the 6 values */
-        const REAL *tb = ep + 3 + k[i] * 6;
-        const vec f0 = LD(tb), f1 = LD(tb + 6), f2 = LD(tb + 12), f3 = LD(tb + 18);
-        rv[i] = w0[i] * f0 + w1[i] * f1 + w2[i] * f2 + w3[i] * f3;
-        rd[i] = d0[i] * f0 + d1[i] * f1 + d2[i] * f2 + d3[i] * f3;
+    for (int g = 0; g < LANES; g += 8) {
+        vrow rv[8], rd[8];
+        for (int i = 0; i < 8; i++) {   /* one lane: its 4 slots, as vectors over the 6 values */
+            const int j = g + i;
+            const REAL *tb = ep + 3 + k[j] * 6;
+            const vrow f0 = LDR(tb), f1 = LDR(tb + 6), f2 = LDR(tb + 12), f3 = LDR(tb + 18);
+            rv[i] = w0[j] * f0 + w1[j] * f1 + w2[j] * f2 + w3[j] * f3;
+            rd[i] = d0[j] * f0 + d1[j] * f1 + d2[j] * f2 + d3[j] * f3;
+        }
+        transpose8(rv);
+        transpose8(rd);
+        for (int c = 0; c < 6; c++) {
+            memcpy((REAL *)&va[c] + g, &rv[c], sizeof rv[c]);
+            memcpy((REAL *)&vd[c] + g, &rd[c], sizeof rd[c]);
+        }
     }
-    transpose8(rv);
-    transpose8(rd);
-    for (int c = 0; c < 6; c++) { va[c] = rv[c]; vd[c] = rd[c]; }
 }
 
 static void chunk(const struct targs *restrict q, const int64_t c)
@@ -277,6 +292,16 @@ static void chunk(const struct targs *restrict q, const int64_t c)
             }
         }
     }
+}
+
+/* The widest vector the compiler was allowed (-march): 64 bytes with AVX-512, else 32 */
+int64_t bb_texel_vector_bytes(void)
+{
+#if defined(__AVX512F__)
+    return 64;
+#else
+    return 32;
+#endif
 }
 
 int bb_shade_texels(int64_t mode, int64_t n, int64_t V, int64_t L, int64_t P, int64_t ks_factor, int64_t l2,

@@ -115,12 +115,24 @@ def _lib(dtype: torch.dtype):
                            [ctypes.c_int64] * 9 + [ctypes.c_void_p] * 16, fallback="torch.compile kernels")
 
 
-def _texel_lib(dtype: torch.dtype):
-    """The texel kernel for ``dtype``, or ``None`` when native kernels are unavailable."""
+def _texel_lib(dtype: torch.dtype, lanes: int = 8):
+    """The texel kernel for ``dtype`` with ``lanes`` particles per vector (8 or 16), or ``None`` when native
+    kernels are unavailable."""
     return native_function(_DIR / "_native_texels.c", "bb_shade_texels", dtype,
                            [ctypes.c_int64] * 12 + [ctypes.c_void_p] * 24 + [ctypes.c_int64, ctypes.c_double,
                                                                                ctypes.c_double], restype=ctypes.c_int,
-                           fallback="sparse torch lookups")
+                           extra_flags=() if lanes == 8 else (f"-DLANES={lanes}",), fallback="sparse torch lookups")
+
+
+def texel_lanes(dtype: torch.dtype, n: int) -> int:
+    """Particles per vector for the texel kernel: 16 where the compiled kernel has 64-byte vectors (AVX-512) of
+    float32 and 16 lanes take fewer passes over ``n`` particles than 8 (20 particles: 2 passes instead of 3),
+    else 8. The lanes are independent particles, so the results are the same either way."""
+    lib = _texel_lib(dtype)
+    if lib is None or dtype != torch.float32 or -(-n // 16) >= -(-n // 8):
+        return 8
+    width = native_function(_DIR / "_native_texels.c", "bb_texel_vector_bytes", dtype, [], restype=ctypes.c_int64)
+    return 16 if width is not None and width() >= 64 else 8
 
 
 def available(t: Tensor, texels: bool = False) -> bool:
@@ -164,7 +176,7 @@ def _call(mode, maps, geo, ks_factor, *, y=None, wgt=None, gout=None, l2=False, 
     epart = torch.empty(n, plan.nchunk, dtype=torch.float64) if mode == MODE_LOSS else None
     grads = [(torch.zeros_like if f else torch.empty_like)(m) for m, f in zip(maps, no_grad)] if grad \
         else [None, None, None]
-    status = _texel_lib(dt)(mode, n, V, L, P, int(ks_factor), int(l2), int(need_grad), nt, T, flags, plan.nchunk,
+    status = _texel_lib(dt, texel_lanes(dt, n))(mode, n, V, L, P, int(ks_factor), int(l2), int(need_grad), nt, T, flags, plan.nchunk,
                             *map(ptr, (taps.idx, taps.w, plan.cstart, plan.uoff, plan.lidx, plan.rptr, plan.rsrc,
                                         kd, r, ks, nl, nv, nh2, w, amp, y, wgt, gout, out, epart, *grads, env)),
                             transfer.NODES, transfer.T0, transfer.DT)

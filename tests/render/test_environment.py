@@ -312,3 +312,32 @@ def test_rectified_views_under_an_environment_take_the_texel_kernel(dtype, tol, 
     assert calls == [True, True]           # the auto losses, each with the environment's terms
     c, index = compacted_taps(g)
     assert c.texel is None and c.resolution == (1, 4 * 144) and sorted(index.tolist()) == list(range(4 * 144))
+
+
+@pytest.mark.needs_native(kernel="texels")
+def test_sixteen_lanes_give_the_eight_lanes_bits(monkeypatch):
+    """The texel kernel's particles are its SIMD lanes: 8 per vector, or 16 where float32 vectors are 64 bytes
+    (AVX-512) and that takes fewer passes (20 particles: 2 instead of 3). The lanes are independent particles,
+    so both builds give the same images, losses and gradients, bit for bit, under a flash and an environment
+    (whose table lookup transposes 8 lanes at a time), with particles that fill a block partly."""
+    from bayes_brdf.render import native
+    assert native.texel_lanes(torch.float64, 20) == 8 and native.texel_lanes(torch.float32, 8) == 8
+    assert native.texel_lanes(torch.float32, 20) in (8, 16)
+    env = EnvironmentLight(_random_map(16, 32), to_world=z_up(25.0))
+    base = collocated_views(4, 3.0, camera="rectified", resolution=12, power=8.0)
+    views = [View(v.camera, (env,) if i % 2 else v.lights + (env,), name=v.name) for i, v in enumerate(base)]
+    g = GBuffer.build(views, PlanarSample(2.0), dtype=torch.float32)
+    gen = torch.Generator().manual_seed(5)
+    y = 0.3 * torch.rand(4, 12, 12, 3, generator=gen)
+    kd, r, ks, flat = _random_maps(20, 9, gen, torch.float32)
+    out = []
+    for lanes in (8, 16):
+        monkeypatch.setattr(native, "texel_lanes", lambda dtype, n, lanes=lanes: lanes)
+        ps = [t.clone().requires_grad_() for t in (kd, r, ks)]
+        loss = shade_loss(SVBRDF(*ps, flat), g, y, kind="l1")
+        loss.sum().backward()
+        with torch.no_grad():
+            img = shade(SVBRDF(kd, r, ks, flat), g)
+        out.append((img, loss.detach(), *[p.grad for p in ps]))
+    for a, b in zip(*out):
+        assert torch.equal(a, b)
