@@ -141,6 +141,46 @@ static inline void transpose8(vrow r[8])
     }
 }
 
+#define STR(p, x) (*(vrowu *)(p) = (x))
+
+/* Texels t0..t1 of one channel of the maps, particle-major (particle i at src + i * stride), into texel-major
+ * rows (texel t's n particles at m + t * row, padded to np lanes with a harmless 0.5): 8 particles x 8 texels
+ * at a time as 8 vector loads, a transpose and 8 vector stores. */
+static void to_texel_major(REAL *restrict m, int64_t row, const REAL *restrict src, int64_t stride, int64_t n,
+                           int64_t np, int64_t t0, int64_t t1)
+{
+    const vrow half = (vrow){0} + (REAL)0.5;
+    for (int64_t i0 = 0; i0 < np; i0 += 8) {
+        int64_t t = t0;
+        for (; t + 8 <= t1; t += 8) {
+            vrow r[8];
+            for (int k = 0; k < 8; k++) r[k] = i0 + k < n ? LDR(src + (i0 + k) * stride + t) : half;
+            transpose8(r);
+            for (int j = 0; j < 8; j++) STR(m + (t + j) * row + i0, r[j]);
+        }
+        for (; t < t1; t++)
+            for (int k = 0; k < 8; k++) m[t * row + i0 + k] = i0 + k < n ? src[(i0 + k) * stride + t] : (REAL)0.5;
+    }
+}
+
+/* The inverse for the gradients: texel-major rows of texels t0..t1 (texel t's particles at g + (t - t0) * row)
+ * into the n particles' maps (particle i at dst + i * stride). */
+static void from_texel_major(REAL *restrict dst, int64_t stride, const REAL *restrict g, int64_t row, int64_t n,
+                             int64_t t0, int64_t t1)
+{
+    for (int64_t i0 = 0; i0 < n; i0 += 8) {
+        int64_t t = t0;
+        for (; t + 8 <= t1; t += 8) {
+            vrow r[8];
+            for (int j = 0; j < 8; j++) r[j] = LDR(g + (t - t0 + j) * row + i0);
+            transpose8(r);
+            for (int k = 0; k < 8 && i0 + k < n; k++) STR(dst + (i0 + k) * stride + t, r[k]);
+        }
+        for (; t < t1; t++)
+            for (int k = 0; k < 8 && i0 + k < n; k++) dst[(i0 + k) * stride + t] = g[(t - t0) * row + i0 + k];
+    }
+}
+
 /* Catmull-Rom in log r of the environment's tables at the lanes' roughness: values and d/dr of a, b.
  * The lanes' nodes and weights are computed as vectors without branches; each lane then combines its 4 slots
  * (a slot's 6 values load as one vector, rows padded by 2) into a row, and a transpose per 8 lanes turns the
@@ -348,20 +388,10 @@ int bb_shade_texels(int64_t mode, int64_t n, int64_t V, int64_t L, int64_t P, in
 #pragma omp parallel num_threads(nthreads)
     {
 #pragma omp for schedule(static)
-        for (int64_t t0 = 0; t0 < T; t0 += TILE) {   /* the maps, texel-major */
+        for (int64_t t0 = 0; t0 < T; t0 += TILE) {   /* the maps, texel-major: 8 x 8 blocks transposed */
             const int64_t t1 = t0 + TILE < T ? t0 + TILE : T;
-            for (int ch = 0; ch < 7; ch++) {
-                if (q.slot[ch] < 0) continue;
-                for (int64_t i = 0; i < np; i++) {
-                    REAL *m = M + q.slot[ch] * np + i;
-                    if (i < n) {
-                        const REAL *s = src[ch] + i * stride[ch];
-                        for (int64_t t = t0; t < t1; t++) m[t * row] = s[t];
-                    } else {
-                        for (int64_t t = t0; t < t1; t++) m[t * row] = (REAL)0.5;
-                    }
-                }
-            }
+            for (int ch = 0; ch < 7; ch++)
+                if (q.slot[ch] >= 0) to_texel_major(M + q.slot[ch] * np, row, src[ch], stride[ch], n, np, t0, t1);
         }
 #pragma omp for schedule(dynamic, 1)
         for (int64_t c = 0; c < nchunk; c++) chunk(&q, c);
@@ -378,14 +408,9 @@ int bb_shade_texels(int64_t mode, int64_t n, int64_t V, int64_t L, int64_t P, in
                         for (int64_t k = 0; k < row; k++) bt[k] += g[k];
                     }
                 }
-                for (int ch = 0; ch < 7; ch++) {
-                    if (q.slot[ch] < 0 || (flags & (8 << map_of(ch)))) continue;
-                    for (int64_t i = 0; i < n; i++) {
-                        const REAL *bi = buf + q.slot[ch] * np + i;
-                        REAL *d = dst[ch] + i * stride[ch];
-                        for (int64_t t = t0; t < t1; t++) d[t] = bi[(t - t0) * row];
-                    }
-                }
+                for (int ch = 0; ch < 7; ch++)
+                    if (q.slot[ch] >= 0 && !(flags & (8 << map_of(ch))))
+                        from_texel_major(dst[ch], stride[ch], buf + q.slot[ch] * np, row, n, t0, t1);
             }
         }
     }
