@@ -227,19 +227,17 @@ static void chunk(const struct targs *restrict q, const int64_t c)
     const REAL kf = q->kf;
     REAL *restrict G = q->G + q->uoff[c] * row, *restrict GC = q->GC + c * 7 * np;
     double *restrict ES = q->ES + c * np;
-    if (grad) {
-        memset(G, 0, (size_t)((q->uoff[c + 1] - q->uoff[c]) * row) * sizeof(REAL));
-        memset(GC, 0, (size_t)(7 * np) * sizeof(REAL));
-    }
-    memset(ES, 0, (size_t)np * sizeof(double));
-    for (int64_t p = q->cstart[c]; p < q->cstart[c + 1]; p++) {
-        const int32_t *ti = q->tidx + p * 4, *li = q->lidx + p * 4;
-        const REAL *tw = q->tw + p * 4;
-        const REAL w0 = tw[0], w1 = tw[1], w2 = tw[2], w3 = tw[3];
-        const REAL *M0 = q->M + ti[0] * row, *M1 = q->M + ti[1] * row, *M2 = q->M + ti[2] * row,
-                   *M3 = q->M + ti[3] * row;
-        REAL *G0 = G + li[0] * row, *G1 = G + li[1] * row, *G2 = G + li[2] * row, *G3 = G + li[3] * row;
-        for (int64_t b = 0; b < np; b += LANES) {
+    if (grad) memset(G, 0, (size_t)((q->uoff[c + 1] - q->uoff[c]) * row) * sizeof(REAL));
+    for (int64_t b = 0; b < np; b += LANES) {   /* a block of particles over the chunk's pixels */
+        dvec es = {0};   /* its energies and its constant maps' gradients, summed in pixel order */
+        vec gcs[7] = {{0}};
+        for (int64_t p = q->cstart[c]; p < q->cstart[c + 1]; p++) {
+            const int32_t *ti = q->tidx + p * 4, *li = q->lidx + p * 4;
+            const REAL *tw = q->tw + p * 4;
+            const REAL w0 = tw[0], w1 = tw[1], w2 = tw[2], w3 = tw[3];
+            const REAL *M0 = q->M + ti[0] * row, *M1 = q->M + ti[1] * row, *M2 = q->M + ti[2] * row,
+                       *M3 = q->M + ti[3] * row;
+            REAL *G0 = G + li[0] * row, *G1 = G + li[1] * row, *G2 = G + li[2] * row, *G3 = G + li[3] * row;
             vec val[7];
             for (int ch = 0; ch < 7; ch++) {
                 const int64_t o = q->slot[ch] * np + b;
@@ -314,16 +312,14 @@ static void chunk(const struct targs *restrict q, const int64_t c)
                     ar += gF * sD[l];
                 }
             }
-            if (mode == MODE_LOSS)
-                *(dvecu *)(ES + b) = (dvec)(*(dvecu *)(ES + b)) + __builtin_convertvector(e, dvec);
+            if (mode == MODE_LOSS) es += __builtin_convertvector(e, dvec);
             if (!grad) continue;
             const vec acc[7] = {akd0, akd1, akd2, ar, aks0, aks1, aks2};
             for (int ch = 0; ch < 7; ch++) {
                 if (q->flags & (8 << map_of(ch))) continue;
                 const vec g = acc[ch];
                 if (q->slot[ch] < 0) {
-                    REAL *gc = GC + ch * np + b;
-                    ST(gc, LD(gc) + g);
+                    gcs[ch] += g;
                 } else {
                     const int64_t o = q->slot[ch] * np + b;
                     ST(G0 + o, LD(G0 + o) + w0 * g); ST(G1 + o, LD(G1 + o) + w1 * g);
@@ -331,6 +327,8 @@ static void chunk(const struct targs *restrict q, const int64_t c)
                 }
             }
         }
+        *(dvecu *)(ES + b) = es;
+        for (int ch = 0; ch < 7; ch++) ST(GC + ch * np + b, gcs[ch]);
     }
 }
 
