@@ -145,14 +145,16 @@ static inline void transpose8(vrow r[8])
 
 /* Texels t0..t1 of one channel of the maps, particle-major (particle i at src + i * stride), into texel-major
  * rows (texel t's n particles at m + t * row, padded to np lanes with a harmless 0.5): 8 particles x 8 texels
- * at a time as 8 vector loads, a transpose and 8 vector stores. */
+ * at a time as 8 vector loads, a transpose and 8 vector stores. Texels that no pixel reads (no gradient rows:
+ * rptr[t + 1] == rptr[t], e.g. a texture atlas's gaps) are left unwritten, 8 at a time. */
 static void to_texel_major(REAL *restrict m, int64_t row, const REAL *restrict src, int64_t stride, int64_t n,
-                           int64_t np, int64_t t0, int64_t t1)
+                           int64_t np, const int64_t *rptr, int64_t t0, int64_t t1)
 {
     const vrow half = (vrow){0} + (REAL)0.5;
     for (int64_t i0 = 0; i0 < np; i0 += 8) {
         int64_t t = t0;
         for (; t + 8 <= t1; t += 8) {
+            if (rptr[t + 8] == rptr[t]) continue;
             vrow r[8];
             for (int k = 0; k < 8; k++) r[k] = i0 + k < n ? LDR(src + (i0 + k) * stride + t) : half;
             transpose8(r);
@@ -163,21 +165,21 @@ static void to_texel_major(REAL *restrict m, int64_t row, const REAL *restrict s
     }
 }
 
-/* The inverse for the gradients: texel-major rows of texels t0..t1 (texel t's particles at g + (t - t0) * row)
+/* The inverse for the gradients: texel-major rows of texels t0..t1 (texel t's particles at rp[t - t0] + off)
  * into the n particles' maps (particle i at dst + i * stride). */
-static void from_texel_major(REAL *restrict dst, int64_t stride, const REAL *restrict g, int64_t row, int64_t n,
+static void from_texel_major(REAL *restrict dst, int64_t stride, const REAL *const *rp, int64_t off, int64_t n,
                              int64_t t0, int64_t t1)
 {
     for (int64_t i0 = 0; i0 < n; i0 += 8) {
         int64_t t = t0;
         for (; t + 8 <= t1; t += 8) {
             vrow r[8];
-            for (int j = 0; j < 8; j++) r[j] = LDR(g + (t - t0 + j) * row + i0);
+            for (int j = 0; j < 8; j++) r[j] = LDR(rp[t - t0 + j] + off + i0);
             transpose8(r);
             for (int k = 0; k < 8 && i0 + k < n; k++) STR(dst + (i0 + k) * stride + t, r[k]);
         }
         for (; t < t1; t++)
-            for (int k = 0; k < 8 && i0 + k < n; k++) dst[(i0 + k) * stride + t] = g[(t - t0) * row + i0 + k];
+            for (int k = 0; k < 8 && i0 + k < n; k++) dst[(i0 + k) * stride + t] = rp[t - t0][off + i0 + k];
     }
 }
 
@@ -374,9 +376,10 @@ int bb_shade_texels(int64_t mode, int64_t n, int64_t V, int64_t L, int64_t P, in
     REAL *Gb = q.grad ? malloc((size_t)(rows * row + 1) * sizeof(REAL)) : 0;
     REAL *GC = malloc((size_t)(nchunk * 7 * np + 1) * sizeof(REAL));
     REAL *B = q.grad ? malloc((size_t)(nthreads * TILE * row + 1) * sizeof(REAL)) : 0;
+    REAL *Z = calloc((size_t)row + 8, sizeof(REAL));   /* the gradient row of a texel that no pixel reads */
     double *ES = malloc((size_t)(nchunk * np + 1) * sizeof(double));
-    if (!M || !C || !GC || !ES || (q.grad && (!Gb || !B))) {
-        free(M); free(C); free(Gb); free(GC); free(B); free(ES);
+    if (!M || !C || !GC || !ES || !Z || (q.grad && (!Gb || !B))) {
+        free(M); free(C); free(Gb); free(GC); free(B); free(ES); free(Z);
         return 1;
     }
     q.M = M; q.C = C; q.G = Gb; q.GC = GC; q.ES = ES;
@@ -389,26 +392,33 @@ int bb_shade_texels(int64_t mode, int64_t n, int64_t V, int64_t L, int64_t P, in
         for (int64_t t0 = 0; t0 < T; t0 += TILE) {   /* the maps, texel-major: 8 x 8 blocks transposed */
             const int64_t t1 = t0 + TILE < T ? t0 + TILE : T;
             for (int ch = 0; ch < 7; ch++)
-                if (q.slot[ch] >= 0) to_texel_major(M + q.slot[ch] * np, row, src[ch], stride[ch], n, np, t0, t1);
+                if (q.slot[ch] >= 0) to_texel_major(M + q.slot[ch] * np, row, src[ch], stride[ch], n, np, rptr, t0, t1);
         }
 #pragma omp for schedule(dynamic, 1)
         for (int64_t c = 0; c < nchunk; c++) chunk(&q, c);
         if (q.grad) {
             REAL *buf = B + omp_get_thread_num() * TILE * row;
+            const REAL *rp[TILE];
 #pragma omp for schedule(static)
             for (int64_t t0 = 0; t0 < T; t0 += TILE) {   /* each texel sums its chunks' rows, in chunk order */
                 const int64_t t1 = t0 + TILE < T ? t0 + TILE : T;
                 for (int64_t t = t0; t < t1; t++) {
+                    const int64_t e0 = rptr[t], e1 = rptr[t + 1];
+                    if (e1 - e0 <= 1) {   /* no rows: zeros; one row: itself */
+                        rp[t - t0] = e1 == e0 ? Z : Gb + rsrc[e0] * row;
+                        continue;
+                    }
                     REAL *bt = buf + (t - t0) * row;
-                    memset(bt, 0, (size_t)row * sizeof(REAL));
-                    for (int64_t e = rptr[t]; e < rptr[t + 1]; e++) {
+                    memcpy(bt, Gb + rsrc[e0] * row, (size_t)row * sizeof(REAL));
+                    for (int64_t e = e0 + 1; e < e1; e++) {
                         const REAL *g = Gb + rsrc[e] * row;
                         for (int64_t k = 0; k < row; k++) bt[k] += g[k];
                     }
+                    rp[t - t0] = bt;
                 }
                 for (int ch = 0; ch < 7; ch++)
                     if (q.slot[ch] >= 0 && !(flags & (8 << map_of(ch))))
-                        from_texel_major(dst[ch], stride[ch], buf + q.slot[ch] * np, row, n, t0, t1);
+                        from_texel_major(dst[ch], stride[ch], rp, q.slot[ch] * np, n, t0, t1);
             }
         }
     }
@@ -423,6 +433,6 @@ int bb_shade_texels(int64_t mode, int64_t n, int64_t V, int64_t L, int64_t P, in
             dst[ch][i * stride[ch]] = s;
         }
     }
-    free(M); free(C); free(Gb); free(GC); free(B); free(ES);
+    free(M); free(C); free(Gb); free(GC); free(B); free(ES); free(Z);
     return 0;
 }
