@@ -42,7 +42,7 @@
 #error "LANES must be 8 or 16"
 #endif
 #define LMAX 4  /* lights per view (the caller checks) */
-#define TILE 16 /* texels per step of the layout passes */
+#define TILE 128 /* texels per step of the layout passes (long enough runs of each map row for the prefetcher) */
 #define MODE_IMAGE_FWD 0
 #define MODE_IMAGE_BWD 1
 #define MODE_LOSS 2
