@@ -209,7 +209,9 @@ class EnvironmentLight:
         x0 = x0.long() % w
         x1 = (x0 + 1) % w
         y0 = y0.long()
-        m = self.radiance.to(torch.float64)
+        m = self.__dict__.get("_radiance64")
+        if m is None:                                          # the map in float64, once per light
+            m = self.__dict__["_radiance64"] = self.radiance.to(torch.float64)
         out = (m[y0, x0] * ((1 - fx) * (1 - fy))[..., None] + m[y0, x1] * (fx * (1 - fy))[..., None]
                + m[y0 + 1, x0] * ((1 - fx) * fy)[..., None] + m[y0 + 1, x1] * (fx * fy)[..., None])
         return out * self.scale

@@ -28,6 +28,7 @@ is refused under an environment light (see :func:`check_normals`).
 """
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass
 
@@ -106,37 +107,57 @@ def _local(u_lat: Tensor, t, b, n, cos_theta: Tensor):
 
 def _filtered(light, pyramid, l: Tensor, footprint: Tensor, bias: float) -> Tensor:
     """Radiance ``[..., 3]`` from directions ``l`` averaged over a solid angle ``footprint`` (trilinear in the
-    pyramid; the exact look-up where the footprint is below a texel)."""
+    pyramid; the exact look-up where the footprint is below a texel): level ``lev`` (0: the map itself, ``k``:
+    ``pyramid[k - 1]``) mixes its two neighbouring levels, ``floor(lev)`` with weight ``1 - frac`` and the next
+    with ``frac``, each direction's two levels read in one gather from the packed pyramid."""
     uv = light.to_uv(l)
     h, w, _ = light.radiance.shape
     texel = (2 * math.pi / w) * (math.pi / (h - 1)) * (uv[..., 1] * math.pi).sin().clamp_min(1e-6)
-    lev = (0.5 * torch.log2(footprint.clamp_min(1e-30) / texel) + bias).clamp(0, len(pyramid))
-    out = torch.zeros(*l.shape[:-1], 3, dtype=torch.float64)
-    base = lev < 1
+    n = len(pyramid)
+    lev = (0.5 * torch.log2(footprint.clamp_min(1e-30) / texel) + bias).clamp(0, n)
+    lo = lev.floor().clamp(max=n - 1)
+    f = (lev - lo)[..., None]
+    k = lo.long()
+    packed = _packed(light, pyramid)
+    upper = _pyramid_lookup(packed, uv, k + 1) * light.scale
+    lower = _pyramid_lookup(packed, uv, k.clamp_min(1)) * light.scale
+    base = k == 0
     if bool(base.any()):
-        out[base] = light.eval(l[base]) * (1 - lev[base])[..., None]
-    for k, img in enumerate(pyramid):          # level k + 1
-        wk = (1 - (lev - (k + 1)).abs()).clamp_min(0)
-        sel = wk > 0
-        if bool(sel.any()):
-            out[sel] = out[sel] + _bilinear(img, uv[sel]) * wk[sel][..., None] * light.scale
-    return out
+        lower = torch.where(base[..., None], light.eval(l), lower)
+    return lower * (1 - f) + upper * f
 
 
-def _bilinear(img: Tensor, uv: Tensor) -> Tensor:
-    """Cell-centred bilinear look-up of ``img [h, w, 3]`` at ``uv [N, 2]`` (periodic in u, clamped in v)."""
-    h, w, _ = img.shape
-    x = uv[:, 0] * w - 0.5
-    y = (uv[:, 1] * h - 0.5).clamp(0, h - 1)
+def _pyramid_lookup(packed, uv: Tensor, level: Tensor) -> Tensor:
+    """Cell-centred bilinear look-up (periodic in u, clamped in v) of pyramid level ``level [...]`` (1 .. its
+    length: each point its own) at ``uv [..., 2]``, from the :func:`_packed` pyramid."""
+    flat, off, hs, ws = packed
+    hk, wk, ok = hs[level], ws[level], off[level]
+    x = uv[..., 0] * wk - 0.5
+    y = (uv[..., 1] * hk - 0.5).clamp_min(0).minimum(hk - 1)
     x0 = torch.floor(x)
-    fx = (x - x0)[:, None]
-    y0 = torch.floor(y).clamp(max=h - 2)
-    fy = (y - y0)[:, None]
-    x0 = x0.long() % w
-    x1 = (x0 + 1) % w
-    y0 = y0.long()
-    return (img[y0, x0] * (1 - fx) * (1 - fy) + img[y0, x1] * fx * (1 - fy) + img[y0 + 1, x0] * (1 - fx) * fy
-            + img[y0 + 1, x1] * fx * fy)
+    fx = (x - x0)[..., None]
+    y0 = torch.floor(y).minimum(hk - 2)
+    fy = (y - y0)[..., None]
+    wi = wk.long()
+    x0 = x0.long() % wi
+    x1 = (x0 + 1) % wi
+    r0 = ok + y0.long() * wi
+    r1 = r0 + wi
+    return (flat[r0 + x0] * (1 - fx) * (1 - fy) + flat[r0 + x1] * fx * (1 - fy) + flat[r1 + x0] * (1 - fx) * fy
+            + flat[r1 + x1] * fx * fy)
+
+
+def _packed(light, pyramid):
+    """The pyramid's levels as one ``[texels, 3]`` table, with each level's offset, height and width (index
+    ``k`` for level ``k``; index 0 unused). Kept on the light, like the pyramid."""
+    memo = light.__dict__.setdefault("_pyramid_packed", {})
+    if len(pyramid) not in memo:
+        sizes = [(img.shape[0], img.shape[1]) for img in pyramid]
+        off = torch.tensor([0, 0] + list(itertools.accumulate(hh * ww for hh, ww in sizes))[:-1])
+        hs = torch.tensor([2.0] + [float(hh) for hh, _ in sizes], dtype=torch.float64)
+        ws = torch.tensor([1.0] + [float(ww) for _, ww in sizes], dtype=torch.float64)
+        memo[len(pyramid)] = (torch.cat([img.reshape(-1, 3) for img in pyramid]), off, hs, ws)
+    return memo[len(pyramid)]
 
 
 def pyramid(light, levels: int = 8) -> list[Tensor]:

@@ -341,3 +341,42 @@ def test_sixteen_lanes_give_the_eight_lanes_bits(monkeypatch):
         out.append((img, loss.detach(), *[p.grad for p in ps]))
     for a, b in zip(*out):
         assert torch.equal(a, b)
+
+
+def _level_by_level(light, pyr, l, footprint, bias):
+    """The filtered look-up as its definition: every level ``k`` (0: the map, ``k``: ``pyr[k - 1]`` read
+    bilinearly at cell centres) weighted by the tent ``max(0, 1 - |lev - k|)``, summed level by level."""
+    uv = light.to_uv(l)
+    h, w, _ = light.radiance.shape
+    texel = (2 * math.pi / w) * (math.pi / (h - 1)) * (uv[..., 1] * math.pi).sin().clamp_min(1e-6)
+    lev = (0.5 * torch.log2(footprint.clamp_min(1e-30) / texel) + bias).clamp(0, len(pyr))
+    out = light.eval(l) * (1 - lev).clamp_min(0)[..., None]
+    for k, img in enumerate(pyr, 1):
+        hh, ww, _ = img.shape
+        x = uv[..., 0] * ww - 0.5
+        y = (uv[..., 1] * hh - 0.5).clamp(0, hh - 1)
+        x0, y0 = torch.floor(x), torch.floor(y).clamp(max=hh - 2)
+        fx, fy = (x - x0)[..., None], (y - y0)[..., None]
+        x0, y0 = x0.long() % ww, y0.long()
+        x1 = (x0 + 1) % ww
+        look = (img[y0, x0] * (1 - fx) * (1 - fy) + img[y0, x1] * fx * (1 - fy) + img[y0 + 1, x0] * (1 - fx) * fy
+                + img[y0 + 1, x1] * fx * fy)
+        out = out + look * (1 - (lev - k).abs()).clamp_min(0)[..., None] * light.scale
+    return out
+
+
+def test_filtered_lookup_is_the_tent_weighted_sum_of_the_pyramid_levels():
+    """The transfer's pre-filtered radiance reads each direction's two neighbouring pyramid levels in one
+    gather; it equals the level-by-level tent-weighted sum, for footprints from below a texel (the map itself)
+    to past the coarsest level, at the poles and across the u seam."""
+    from bayes_brdf.render.transfer import _filtered, pyramid
+    light = EnvironmentLight(_random_map(64, 128), to_world=z_up(20.0), scale=1.7)
+    pyr = pyramid(light)
+    gen = torch.Generator().manual_seed(6)
+    d = torch.randn(4000, 3, generator=gen, dtype=torch.float64)
+    d[:4] = torch.tensor([[0, 0, 1.0], [0, 0, -1.0], [1.0, 0, 0], [-1.0, 1e-9, 0]])
+    d = d / d.norm(dim=-1, keepdim=True)
+    footprint = 10 ** (torch.rand(4000, generator=gen, dtype=torch.float64) * 7 - 6.5)
+    for bias in (0.0, 0.5):
+        ours, ref = _filtered(light, pyr, d, footprint, bias), _level_by_level(light, pyr, d, footprint, bias)
+        assert torch.allclose(ours, ref, rtol=1e-12, atol=1e-12)
