@@ -205,6 +205,19 @@ static inline void env_lookup(const struct targs *restrict q, const REAL *restri
               w2 = (REAL)0.5 * (x + 4 * x2 - 3 * x3), w3 = (REAL)0.5 * (x3 - x2);
     const vec d0 = (REAL)0.5 * (-1 + 4 * x - 3 * x2) * ds, d1 = (REAL)0.5 * (-10 * x + 9 * x2) * ds,
               d2 = (REAL)0.5 * (1 + 8 * x - 9 * x2) * ds, d3 = (REAL)0.5 * (3 * x2 - 2 * x) * ds;
+#if LANES == 16
+    /* 16 lanes: the table is value-major (env_layout), so value c's slots are one 32-entry table held in two
+     * vectors, and each tap of all 16 lanes is one two-vector permute by the lanes' slot indices */
+    const int64_t sl = q->nodes + 2;
+    for (int c = 0; c < 6; c++) {
+        const REAL *tb = ep + 3 + c * sl;
+        const vec lo16 = LD(tb), hi16 = LD(tb + 16);
+        const vec f0 = __builtin_shuffle(lo16, hi16, k), f1 = __builtin_shuffle(lo16, hi16, k + 1),
+                  f2 = __builtin_shuffle(lo16, hi16, k + 2), f3 = __builtin_shuffle(lo16, hi16, k + 3);
+        va[c] = w0 * f0 + w1 * f1 + w2 * f2 + w3 * f3;
+        vd[c] = d0 * f0 + d1 * f1 + d2 * f2 + d3 * f3;
+    }
+#else
     for (int g = 0; g < LANES; g += 8) {
         vrow rv[8], rd[8];
         for (int i = 0; i < 8; i++) {   /* one lane: its 4 slots, as vectors over the 6 values */
@@ -221,6 +234,7 @@ static inline void env_lookup(const struct targs *restrict q, const REAL *restri
             memcpy((REAL *)&vd[c] + g, &rd[c], sizeof rd[c]);
         }
     }
+#endif
 }
 
 static void chunk(const struct targs *restrict q, const int64_t c)
@@ -358,7 +372,7 @@ int bb_shade_texels(int64_t mode, int64_t n, int64_t V, int64_t L, int64_t P, in
     struct targs q = {mode, n, V, L, P, T, l2, (mode == MODE_IMAGE_BWD) || (mode == MODE_LOSS && need_grad),
                       flags, np, 0, 0, nchunk, ks_factor ? (REAL)1 : (REAL)0, tidx, lidx, tw, cstart, uoff,
                       nl, nv, nh2, w, amp, y, wgt, gout, out, {0}, 0, 0, 0, 0, 0,
-                      env, nodes, 3 + 6 * (nodes + 2) + 2, t0, dt};
+                      env, nodes, 3 + 6 * (nodes + 2) + (LANES == 16 ? 14 : 2), t0, dt};
     const REAL *src[7];    /* channel ch of particle i: src[ch][i * stride[ch] + t] */
     int64_t stride[7];
     REAL *dst[7];

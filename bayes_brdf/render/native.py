@@ -127,9 +127,10 @@ def _texel_lib(dtype: torch.dtype, lanes: int = 8):
 def texel_lanes(dtype: torch.dtype, n: int) -> int:
     """Particles per vector for the texel kernel: 16 where the compiled kernel has 64-byte vectors (AVX-512) of
     float32 and 16 lanes take fewer passes over ``n`` particles than 8 (20 particles: 2 passes instead of 3),
-    else 8. The lanes are independent particles, so the results are the same either way."""
+    else 8 (also where an environment's roughness table is longer than the 32 entries the 16-lane lookup reads). The
+    lanes are independent particles, so the results are the same either way."""
     lib = _texel_lib(dtype)
-    if lib is None or dtype != torch.float32 or -(-n // 16) >= -(-n // 8):
+    if lib is None or dtype != torch.float32 or -(-n // 16) >= -(-n // 8) or transfer.NODES + 2 > 32:
         return 8
     width = native_function(_DIR / "_native_texels.c", "bb_texel_vector_bytes", dtype, [], restype=ctypes.c_int64)
     return 16 if width is not None and width() >= 64 else 8
@@ -176,7 +177,9 @@ def _call(mode, maps, geo, ks_factor, *, y=None, wgt=None, gout=None, l2=False, 
     epart = torch.empty(n, plan.nchunk, dtype=torch.float64) if mode == MODE_LOSS else None
     grads = [(torch.zeros_like if f else torch.empty_like)(m) for m, f in zip(maps, no_grad)] if grad \
         else [None, None, None]
-    status = _texel_lib(dt, texel_lanes(dt, n))(mode, n, V, L, P, int(ks_factor), int(l2), int(need_grad), nt, T, flags, plan.nchunk,
+    lanes = texel_lanes(dt, n)
+    env = env_layout(env, value_major=lanes == 16)
+    status = _texel_lib(dt, lanes)(mode, n, V, L, P, int(ks_factor), int(l2), int(need_grad), nt, T, flags, plan.nchunk,
                             *map(ptr, (taps.idx, taps.w, plan.cstart, plan.uoff, plan.lidx, plan.rptr, plan.rsrc,
                                         kd, r, ks, nl, nv, nh2, w, amp, y, wgt, gout, out, epart, *grads, env)),
                             transfer.NODES, transfer.T0, transfer.DT)
@@ -226,18 +229,28 @@ def prepare(kd, r, ks, nl, nv, nh, vh, scale, hw, texels=None):
 _ENV: OrderedDict = OrderedDict()
 
 
-def env_layout(env: Tensor | None) -> Tensor | None:
-    """An environment's terms ``[1, V, C, 1, P]`` in the texel kernel's layout ``[V, P, C + 2]`` (rows padded by
-    two zeros; kept while the same tensor comes again)."""
+def env_layout(env: Tensor | None, value_major: bool = False) -> Tensor | None:
+    """An environment's terms ``[1, V, C, 1, P]`` in the texel kernel's layout (kept while the same tensor comes
+    again): ``[V, P, C + 2]``, its roughness slots one after another (rows padded by two zeros, so that a slot's
+    6 values load as one vector); or, ``value_major`` (the 16-lane kernel), ``E`` then each of the 6 values'
+    ``NODES + 2`` slots in a row, padded by 14 zeros (32 entries from a value's first slot are in bounds: the
+    kernel reads a value's slots as one 32-entry table)."""
     if env is None:
         return None
-    hit = _ENV.get(id(env))
+    hit = _ENV.get((id(env), value_major))
     if hit is not None and hit[0] is env:
         return hit[1]
     src = env[0, :, :, 0, :].transpose(1, 2)                       # [V, P, C]
-    out = torch.zeros(*src.shape[:2], src.shape[2] + 2, dtype=src.dtype)   # rows padded: vector loads of a slot
-    out[..., :src.shape[2]] = src
-    _ENV[id(env)] = (env, out)
+    if value_major:
+        V, P, _ = src.shape
+        slots = transfer.NODES + 2
+        out = torch.zeros(V, P, 3 + 6 * slots + 14, dtype=src.dtype)
+        out[..., :3] = src[..., :3]
+        out[..., 3:3 + 6 * slots] = src[..., 3:].reshape(V, P, slots, 6).transpose(2, 3).reshape(V, P, 6 * slots)
+    else:
+        out = torch.zeros(*src.shape[:2], src.shape[2] + 2, dtype=src.dtype)   # rows padded: a slot's vector load
+        out[..., :src.shape[2]] = src
+    _ENV[(id(env), value_major)] = (env, out)
     while len(_ENV) > 8:
         _ENV.popitem(last=False)
     return out
@@ -255,10 +268,9 @@ class NativeShade(torch.autograd.Function):
     def forward(ctx, kd, r, ks, nl, nv, nh, vh, scale, ks_factor, taps=None, env=None):
         hw = nl.shape[-2:]
         n, maps, geo = prepare(kd, r, ks, nl, nv, nh, vh, scale, hw, None if taps is None else taps.grid)
-        ev = env_layout(env)
-        out, _, _ = _call(MODE_IMAGE_FWD, maps, geo, ks_factor, taps=taps, env=ev)
+        out, _, _ = _call(MODE_IMAGE_FWD, maps, geo, ks_factor, taps=taps, env=env)
         ctx.save_for_backward(*maps, *geo)
-        ctx.meta = (ks_factor, taps, kd.shape, r.shape, ks.shape, ev)
+        ctx.meta = (ks_factor, taps, kd.shape, r.shape, ks.shape, env)
         return out.reshape(n, geo[0].shape[0], 3, *hw)
 
     @staticmethod
@@ -283,7 +295,7 @@ class NativeLoss(torch.autograd.Function):
         yy = y.reshape(y.shape[0], 3, -1).contiguous()
         ww = wgt.expand(y.shape[0], 1, *hw).reshape(y.shape[0], -1).contiguous()
         _, epart, grads = _call(MODE_LOSS, maps, geo, ks_factor, y=yy, wgt=ww, l2=not l1, need_grad=need,
-                                taps=taps, no_grad=tuple(not f for f in ctx.needs_input_grad[:3]), env=env_layout(env))
+                                taps=taps, no_grad=tuple(not f for f in ctx.needs_input_grad[:3]), env=env)
         if need:
             ctx.save_for_backward(*grads)
         ctx.shapes = (kd.shape, r.shape, ks.shape)
