@@ -9,7 +9,8 @@ per-particle albedo and roughness maps of 128^2 texels and a constant specular, 
 backend (the native texel kernel on CPU). For each particle count: median ms of ``shade_loss`` with
 the gradients of albedo and roughness, and of ``shade`` (the images ``[n, 20, 128, 128, 3]``,
 no gradient), the two timed in turn in each round. Its particles are the kernel's SIMD lanes (8
-floats), so 1-4 particles leave most lanes empty.
+floats, or 16 where float32 vectors are 64 bytes and that takes fewer passes: ``native.texel_lanes``), so 1-4
+particles leave most lanes empty.
 """
 from __future__ import annotations
 
