@@ -196,6 +196,14 @@ class EnvironmentLight:
         loc = torch.stack([ph.sin() * th.sin(), th.cos(), -ph.cos() * th.sin()], -1)
         return loc @ self._rotation().T
 
+    @property
+    def radiance64(self) -> Tensor:
+        """The map in float64 (made once per light; the look-ups and the precomputations read it)."""
+        m = self.__dict__.get("_radiance64")
+        if m is None:
+            m = self.__dict__["_radiance64"] = self.radiance.to(torch.float64)
+        return m
+
     def eval(self, d: Tensor) -> Tensor:
         """Radiance ``[..., 3]`` (float64) arriving from world directions ``d [..., 3]`` (Mitsuba's look-up)."""
         uv = self.to_uv(d)
@@ -209,9 +217,7 @@ class EnvironmentLight:
         x0 = x0.long() % w
         x1 = (x0 + 1) % w
         y0 = y0.long()
-        m = self.__dict__.get("_radiance64")
-        if m is None:                                          # the map in float64, once per light
-            m = self.__dict__["_radiance64"] = self.radiance.to(torch.float64)
+        m = self.radiance64
         out = (m[y0, x0] * ((1 - fx) * (1 - fy))[..., None] + m[y0, x1] * (fx * (1 - fy))[..., None]
                + m[y0 + 1, x0] * ((1 - fx) * fy)[..., None] + m[y0 + 1, x1] * (fx * fy)[..., None])
         return out * self.scale
@@ -220,7 +226,7 @@ class EnvironmentLight:
     def _distribution(self):
         if self._cdf is None:
             h, w, _ = self.radiance.shape
-            lum = (self.radiance.to(torch.float64) * torch.tensor(LUMINANCE, dtype=torch.float64)).sum(-1)
+            lum = (self.radiance64 * torch.tensor(LUMINANCE, dtype=torch.float64)).sum(-1)
             cell = 0.25 * (lum[:-1] + lum[1:]).unsqueeze(-1)            # rows j, j+1 -> cell row j
             cell = torch.cat([cell[..., 0], cell[..., 0][:, :1]], 1)      # columns periodic
             cell = (cell[:, :-1] + cell[:, 1:])                            # [H-1, W] average of 4 corners (x2)

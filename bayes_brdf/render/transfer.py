@@ -164,7 +164,7 @@ def pyramid(light, levels: int = 8) -> list[Tensor]:
     """Coarser copies of the map (levels 1, 2, ...: halved each time, solid-angle-weighted means, cell-centred)."""
     memo = light.__dict__.setdefault("_pyramid", {})
     if levels not in memo:
-        img = light.radiance.to(torch.float64)
+        img = light.radiance64
         h = img.shape[0]
         wt = (torch.arange(h, dtype=torch.float64) / (h - 1) * math.pi).sin().clamp_min(1e-3)[:, None, None]
         out = []
@@ -189,7 +189,7 @@ def irradiance_map(light, resolution: int = 64, cells: int = 64) -> Tensor:
     centre). Kept on the light."""
     memo = light.__dict__.setdefault("_irradiance", {})
     if resolution not in memo:
-        img = light.radiance.to(torch.float64)
+        img = light.radiance64
         h, w, _ = img.shape
         u = (torch.arange(w, dtype=torch.float64) + 0.5) / w
         v = torch.arange(h, dtype=torch.float64) / (h - 1)
