@@ -10,7 +10,10 @@
  * texel maps through bilinear taps, e.g. a mesh's).
  *
  * Layout (contiguous, channel-first, P = H * W pixels):
- *   kd, ks [n, 3, P]; r [n, P]
+ *   kd, ks [n, 3, P]; r [n, P]; a map flagged constant (flags bit k: kd 1, r 2, ks 4) is one value per particle
+ *   and channel instead, kd, ks [n, 3], r [n], and its gradient comes as per-block partial sums
+ *   [n, c, blocks] (the caller sums them: no thread writes another's); flags bit 3 + k: map k's gradient is
+ *   not wanted (not written, its pointer may be null)
  *   nl, nh2 = (n.h)^2, w [V, L, P]; nv [V, P]; A = scale * (n.l) [V, L, 3, P]
  *   y, gout-per-view [.., 3, P]; wgt [V, P]
  * Parallel over blocks of pixels, particles inside (the block's geometry stays in
@@ -47,7 +50,7 @@
     }
 
 struct args {
-    int64_t mode, n, V, L, P, l2, grad, nb;
+    int64_t mode, n, V, L, P, l2, grad, nb, flags;
     REAL kf;
     const REAL *kd, *r, *ks, *nl, *nv, *nh2, *w, *amp, *y, *wgt, *gout;
     REAL *out; double *epart; REAL *gkd, *gr, *gks;
@@ -61,9 +64,20 @@ static inline void block(const struct args *restrict q, const int64_t i, const i
                *restrict amp = q->amp, *restrict y = q->y, *restrict wgt = q->wgt, *restrict gout = q->gout;
     const int64_t p0 = b * BLK;
     const int64_t m = (P - p0) < BLK ? (P - p0) : BLK;
-    const REAL *restrict KD0 = q->kd + i * 3 * P + p0, *restrict KD1 = KD0 + P, *restrict KD2 = KD0 + 2 * P;
-    const REAL *restrict KS0 = q->ks + i * 3 * P + p0, *restrict KS1 = KS0 + P, *restrict KS2 = KS0 + 2 * P;
-    const REAL *restrict R = q->r + i * P + p0;
+    const int64_t flags = q->flags;
+    /* a constant map: its particle's values repeated over the block (the loops below stay one shape) */
+    REAL ckd[3][BLK], cks[3][BLK], cr[BLK];
+    if (flags & 1)
+        for (int c = 0; c < 3; c++) for (int64_t j = 0; j < BLK; j++) ckd[c][j] = q->kd[i * 3 + c];
+    if (flags & 2)
+        for (int64_t j = 0; j < BLK; j++) cr[j] = q->r[i];
+    if (flags & 4)
+        for (int c = 0; c < 3; c++) for (int64_t j = 0; j < BLK; j++) cks[c][j] = q->ks[i * 3 + c];
+    const REAL *restrict KD0 = (flags & 1) ? ckd[0] : q->kd + i * 3 * P + p0;
+    const REAL *restrict KD1 = (flags & 1) ? ckd[1] : KD0 + P, *restrict KD2 = (flags & 1) ? ckd[2] : KD0 + 2 * P;
+    const REAL *restrict KS0 = (flags & 4) ? cks[0] : q->ks + i * 3 * P + p0;
+    const REAL *restrict KS1 = (flags & 4) ? cks[1] : KS0 + P, *restrict KS2 = (flags & 4) ? cks[2] : KS0 + 2 * P;
+    const REAL *restrict R = (flags & 2) ? cr : q->r + i * P + p0;
     REAL akd0[BLK] = {0}, akd1[BLK] = {0}, akd2[BLK] = {0}, aks0[BLK] = {0}, aks1[BLK] = {0},
          aks2[BLK] = {0}, ar[BLK] = {0}, e[BLK] = {0};
     REAL o0[BLK], o1[BLK], o2[BLK], g0[BLK], g1[BLK], g2[BLK];
@@ -126,16 +140,26 @@ static inline void block(const struct args *restrict q, const int64_t i, const i
         q->epart[i * q->nb + b] = sum;
     }
     if (!grad) return;
-    REAL *GKD = q->gkd + i * 3 * P + p0, *GKS = q->gks + i * 3 * P + p0, *GR = q->gr + i * P + p0;
-    for (int64_t j = 0; j < m; j++) {
-        GKD[j] = akd0[j]; GKD[P + j] = akd1[j]; GKD[2 * P + j] = akd2[j];
-        GKS[j] = aks0[j]; GKS[P + j] = aks1[j]; GKS[2 * P + j] = aks2[j];
-        GR[j] = ar[j];
+    const REAL *acc[7] = {akd0, akd1, akd2, ar, aks0, aks1, aks2};
+    REAL *dst[3] = {q->gkd, q->gr, q->gks};
+    for (int k = 0, a = 0; k < 3; k++) {
+        const int c = k == 1 ? 1 : 3;
+        if (flags & (8 << k)) { a += c; continue; }          /* not wanted */
+        for (int ch = 0; ch < c; ch++, a++) {
+            if (flags & (1 << k)) {                          /* constant: this block's partial sum */
+                REAL sum = 0;
+                for (int64_t j = 0; j < m; j++) sum += acc[a][j];
+                dst[k][(i * c + ch) * q->nb + b] = sum;
+            } else {
+                REAL *G = dst[k] + (i * c + ch) * P + p0;
+                for (int64_t j = 0; j < m; j++) G[j] = acc[a][j];
+            }
+        }
     }
 }
 
 void bb_shade(int64_t mode, int64_t n, int64_t V, int64_t L, int64_t P, int64_t ks_factor, int64_t l2,
-              int64_t need_grad, int64_t nthreads,
+              int64_t need_grad, int64_t nthreads, int64_t flags,
               const REAL *kd, const REAL *r, const REAL *ks,
               const REAL *nl, const REAL *nv, const REAL *nh2,
               const REAL *w, const REAL *amp,
@@ -143,7 +167,7 @@ void bb_shade(int64_t mode, int64_t n, int64_t V, int64_t L, int64_t P, int64_t 
               REAL *out, double *epart, REAL *gkd, REAL *gr, REAL *gks)
 {
     struct args q = {mode, n, V, L, P, l2, (mode == MODE_IMAGE_BWD) || (mode == MODE_LOSS && need_grad),
-                     (P + BLK - 1) / BLK, ks_factor ? (REAL)1 : (REAL)0,  /* q = (1 - kf ks) / pi */
+                     (P + BLK - 1) / BLK, flags, ks_factor ? (REAL)1 : (REAL)0,  /* q = (1 - kf ks) / pi */
                      kd, r, ks, nl, nv, nh2, w, amp, y, wgt, gout, out, epart, gkd, gr, gks};
     const int64_t nb = q.nb;
     /* blocks outside, particles inside: a block's geometry (all views) stays in cache across particles */

@@ -112,7 +112,7 @@ def native_function(src_path: Path, symbol: str, dtype: torch.dtype, argtypes, r
 def _lib(dtype: torch.dtype):
     """The pixel kernel for ``dtype``, or ``None`` when native kernels are unavailable."""
     return native_function(_DIR / "_native_kernels.c", "bb_shade", dtype,
-                           [ctypes.c_int64] * 9 + [ctypes.c_void_p] * 16, fallback="torch.compile kernels")
+                           [ctypes.c_int64] * 10 + [ctypes.c_void_p] * 16, fallback="torch.compile kernels")
 
 
 def _texel_lib(dtype: torch.dtype, lanes: int = 8):
@@ -152,7 +152,8 @@ def _call(mode, maps, geo, ks_factor, *, y=None, wgt=None, gout=None, l2=False, 
     """Run a kernel. ``maps = (kd [n,3,P], r [n,P], ks [n,3,P])``, ``geo = (nl, nv, nh2, w, A)``; with
     ``taps`` (:class:`~bayes_brdf.render.texels.Taps` of the ``P`` pixels) the maps are texel maps
     ``[n, 3, T]``, ``[n, T]`` (or one constant texel, ``[n, 3, 1]``) read bilinearly by the texel kernel, and
-    ``no_grad`` names maps whose gradients are not wanted (returned as zeros).
+    ``no_grad`` names maps whose gradients are not wanted (``None`` from the pixel kernel, zeros from the texel
+    kernel). A ``1 x 1`` map is one value per particle (``[n, 3, 1]``, ``[n, 1]``) for both kernels.
 
     Returns ``(images [n, V, 3, P] or None, energies [n, blocks] or None, gradients shaped like the maps)``."""
     kd, r, ks = maps
@@ -166,9 +167,14 @@ def _call(mode, maps, geo, ks_factor, *, y=None, wgt=None, gout=None, l2=False, 
     if taps is None:
         nb = (P + 63) // 64
         epart = torch.empty(n, nb, dtype=torch.float64) if mode == MODE_LOSS else None
-        grads = [torch.empty_like(m) for m in maps] if grad else [None, None, None]
-        _lib(dt)(mode, n, V, L, P, int(ks_factor), int(l2), int(need_grad), nt,
+        const = [m.shape[-1] == 1 and P > 1 for m in maps]
+        flags = sum(1 << k for k, c in enumerate(const) if c) + sum(8 << k for k, f in enumerate(no_grad) if f)
+        # a constant map's gradient comes as per-block partial sums [n, c, blocks], summed here
+        grads = [None if f or not grad else torch.empty(*m.shape[:-1], nb, dtype=dt) if c else torch.empty_like(m)
+                 for m, c, f in zip(maps, const, no_grad)]
+        _lib(dt)(mode, n, V, L, P, int(ks_factor), int(l2), int(need_grad), nt, flags,
                  *map(ptr, (kd, r, ks, nl, nv, nh2, w, amp, y, wgt, gout, out, epart, *grads)))
+        grads = [g.sum(-1, keepdim=True) if g is not None and c else g for g, c in zip(grads, const)]
         return out, epart, grads
     T = max(m.shape[-1] for m in maps)
     flags = sum(1 << k for k, m in enumerate(maps) if m.shape[-1] == 1 and T > 1) + \
@@ -220,8 +226,8 @@ def prepare(kd, r, ks, nl, nv, nh, vh, scale, hw, texels=None):
     the maps are texel maps of that size (or ``1 x 1``), read through taps."""
     n = max(kd.shape[0], r.shape[0], ks.shape[0])
     h, w_ = texels or hw
-    # 1x1 constants -> full maps (read through taps, a constant stays one texel)
-    full = lambda t, c: t if texels and tuple(t.shape[-2:]) == (1, 1) else t.expand(t.shape[0], 1, c, h, w_)  # noqa: E731
+    # a 1x1 constant stays one value (the kernels flag it), other maps are full [n, c, P]
+    full = lambda t, c: t if tuple(t.shape[-2:]) == (1, 1) else t.expand(t.shape[0], 1, c, h, w_)  # noqa: E731
     maps = (_flat(full(kd, 3), n, 3), _flat(full(r, 1), n, 1)[:, 0], _flat(full(ks, 3), n, 3))
     return n, maps, _geometry(nl, nv, nh, vh, scale)
 
@@ -303,20 +309,21 @@ class NativeLoss(torch.autograd.Function):
 
     @staticmethod
     def backward(ctx, ge):
-        gkd, gr, gks = ctx.saved_tensors
+        grads = [g if want else None for g, want in zip(ctx.saved_tensors, ctx.needs_input_grad[:3])]
         if not bool((ge == 1).all()):  # loss.sum().backward() passes ones: nothing to scale
-            ge = ge.to(gkd.dtype)
-            gkd, gr, gks = gkd * ge[:, None, None], gr * ge[:, None], gks * ge[:, None, None]
-        grads = (gkd, gr, gks)
+            ge = ge.to(next(g.dtype for g in grads if g is not None))
+            grads = [None if g is None else g * ge.reshape(-1, *([1] * (g.dim() - 1))) for g in grads]
         return (*_unflat(grads, ctx.shapes), *(None,) * 11)
 
 
 def _unflat(grads, shapes):
     """Kernel gradients ``[n, c, P]`` back to the looked-up maps' shapes (summing broadcast dimensions)."""
-    gkd, gr, gks = grads
-    n = gr.shape[0]
+    n = next(g.shape[0] for g in grads if g is not None)
     out = []
-    for g, s, c in zip((gkd, gr[:, None], gks), shapes, (3, 1, 3)):
+    for g, s, c in zip(grads, shapes, (3, 1, 3)):
+        if g is None:
+            out.append(None)
+            continue
         full = g.reshape(n, 1, c, -1)
         if tuple(s[-2:]) == (1, 1):
             full = full.sum(-1, keepdim=True)[..., None]

@@ -16,6 +16,7 @@ Example:
 """
 from __future__ import annotations
 
+from collections import OrderedDict
 from dataclasses import replace
 
 import torch
@@ -337,6 +338,29 @@ def _compact_data(g: GBuffer, index: Tensor, target: Tensor, weight, kind: str):
     return out
 
 
+_CHANNELS_FIRST: OrderedDict = OrderedDict()
+
+
+def channels_first(target: Tensor, device, dtype) -> Tensor:
+    """Images ``[V, H, W, 3]`` as contiguous ``[V, 3, H, W]`` of ``dtype`` on ``device``: the kernels' layout.
+
+    Made once and kept while the same, unmodified tensor comes again (a sampler passes its observed images on
+    every step; the copy used to be made each time). ``target`` in a graph is converted each call.
+    """
+    if target.requires_grad:
+        return target.to(device=device, dtype=dtype).permute(0, 3, 1, 2)
+    key = (id(target), dtype, str(device))
+    hit = _CHANNELS_FIRST.get(key)
+    if hit is not None and hit[0] is target and hit[1] == target._version:
+        _CHANNELS_FIRST.move_to_end(key)
+        return hit[2]
+    y = target.to(device=device, dtype=dtype).permute(0, 3, 1, 2).contiguous()
+    _CHANNELS_FIRST[key] = (target, target._version, y)
+    while len(_CHANNELS_FIRST) > 4:
+        _CHANNELS_FIRST.popitem(last=False)
+    return y
+
+
 def shade_loss(maps: SVBRDF, g: GBuffer, target: Tensor, weight: Tensor | float = 1.0, *, kind: str = "l1",
                ks_factor: bool = True, eps: float = 1e-8, chunk_views: int | None = None,
                backend: str = "auto") -> Tensor:
@@ -377,7 +401,7 @@ def shade_loss(maps: SVBRDF, g: GBuffer, target: Tensor, weight: Tensor | float 
         return loss + const if const is not None else loss
     n, g, chunks = _chunks(maps, g, eps, chunk_views, texel_space=backend != "eager")
     dev, dt = maps.albedo.device, maps.albedo.dtype
-    y = target.to(device=dev, dtype=dt).permute(0, 3, 1, 2)
+    y = channels_first(target, dev, dt)
     wt = torch.as_tensor(weight, device=dev, dtype=dt)
     wt = (wt.expand(V, h, w) if wt.dim() < 3 else wt)[:, None]
     kernel = fused.get_loss_kernel(backend, n * V * h * w)

@@ -60,6 +60,26 @@ def test_constant_and_shared_maps_match_eager(impl):
         torch.testing.assert_close(a, e, rtol=1e-10, atol=1e-12)
 
 
+@pytest.mark.parametrize("wanted", [(True, True, True), (True, True, False), (False, True, True)])
+def test_fused_loss_with_constant_maps_matches_eager(impl, wanted):
+    """The loss path with 1x1 maps per particle (a constant roughness, a constant specular: the kernel reads one
+    value, sums its gradient per block) and maps whose gradient is not wanted, against the eager reference."""
+    g, (kd, r, ks), normal = setup()
+    maps = [kd.detach().clone(), r[:, :, :1, :1].detach().clone(), ks[:, :, :1, :1].detach().clone()]
+    for m, w in zip(maps, wanted):
+        m.requires_grad_(w)
+    leaves = [m for m, w in zip(maps, wanted) if w]
+    with torch.no_grad():
+        target = shade(SVBRDF(*(t[:1] * 0.9 for t in maps), normal), g, backend="eager")[0]
+    res = {}
+    for b in ("eager", "compiled"):
+        e = shade_loss(SVBRDF(*maps, normal), g, target, kind="l2", backend=b)
+        scale = torch.arange(1.0, 5.0, dtype=e.dtype)
+        res[b] = (e, *torch.autograd.grad((e * scale).sum(), leaves))
+    for a, e in zip(res["compiled"], res["eager"]):
+        torch.testing.assert_close(a, e, rtol=1e-10, atol=1e-12)
+
+
 @pytest.mark.parametrize("kind", ["l1", "l2"])
 @pytest.mark.parametrize("lights", [1, 2])
 def test_fused_loss_matches_eager_and_image_loss(impl, kind, lights):
