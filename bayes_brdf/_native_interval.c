@@ -6,6 +6,7 @@
  * with log s (1 - s) = -|u| - 2 log1p(exp(-|u|)), stable at saturation; s is kept for the backward.
  * Backward, given dL/dx (gx) and dL/dladj (gl[i]):
  *     du = gx w s (1 - s) + gl[i] (1 - 2 s)
+ * written with a row stride, so that each site's gradient goes straight into its columns of dL/dz.
  * Parallel over particles, one particle's sum in one thread in a fixed order (the result does not depend on
  * the thread count); SIMD inside.
  */
@@ -43,14 +44,14 @@ void bb_interval_fwd(int64_t n, int64_t m, int64_t us, double lo, double w, int6
     }
 }
 
-void bb_interval_bwd(int64_t n, int64_t m, double w, int64_t nt, const REAL *restrict s,
+void bb_interval_bwd(int64_t n, int64_t m, int64_t gs, double w, int64_t nt, const REAL *restrict s,
                      const REAL *restrict gx, const REAL *restrict gl, REAL *restrict gu)
 {
     const REAL rw = (REAL)w;
 #pragma omp parallel for num_threads(nt) schedule(static)
     for (int64_t i = 0; i < n; i++) {
         const REAL *restrict si = s + i * m;
-        REAL *restrict gi = gu + i * m;
+        REAL *restrict gi = gu + i * gs;   /* gs: gu's row stride (the site's columns of the whole gradient) */
         const REAL gli = gl ? gl[i] : (REAL)0;
         if (gx) {
             const REAL *restrict gxi = gx + i * m;
