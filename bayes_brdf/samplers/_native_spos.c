@@ -19,6 +19,7 @@
 
 #define B 32     /* coordinates per block: a few SIMD vectors */
 #define NMAX 64  /* particles per group (the caller checks) */
+#define IT 4     /* particles i per pass of the kernel sums */
 
 void bb_spos_update(int64_t G, int64_t n, int64_t D, int64_t nt, const REAL *restrict z, const REAL *restrict g,
                     const REAL *restrict xi, const REAL *restrict K, const REAL *restrict ks,
@@ -44,21 +45,43 @@ void bb_spos_update(int64_t G, int64_t n, int64_t D, int64_t nt, const REAL *res
                 for (int64_t b = 0; b < m; b++) { zc[j][b] = zr[b]; gc[j][b] = gr[b]; }
                 for (int64_t b = m; b < B; b++) { zc[j][b] = 0; gc[j][b] = 0; }
             }
-            for (int64_t i = 0; i < n; i++) {
-                REAL kz[B], kg[B];
+            /* sum_j K_ij z_j and sum_j K_ij g_j, four particles i at a time: each row j read once per four */
+            for (int64_t i0 = 0; i0 < n; i0 += IT) {
+                const int64_t ni = n - i0 < IT ? n - i0 : IT;
+                REAL kz[IT][B], kg[IT][B];
+                for (int64_t t = 0; t < IT; t++)
 #pragma omp simd
-                for (int64_t b = 0; b < B; b++) { kz[b] = 0; kg[b] = 0; }
-                for (int64_t j = 0; j < n; j++) {
-                    const REAL kij = Kq[i * n + j];
+                    for (int64_t b = 0; b < B; b++) { kz[t][b] = 0; kg[t][b] = 0; }
+                if (ni == IT) {
+                    for (int64_t j = 0; j < n; j++) {
+                        const REAL k0 = Kq[i0 * n + j], k1 = Kq[(i0 + 1) * n + j], k2 = Kq[(i0 + 2) * n + j],
+                                   k3 = Kq[(i0 + 3) * n + j];
 #pragma omp simd
-                    for (int64_t b = 0; b < B; b++) { kz[b] += kij * zc[j][b]; kg[b] += kij * gc[j][b]; }
+                        for (int64_t b = 0; b < B; b++) {
+                            const REAL zj = zc[j][b], gj = gc[j][b];
+                            kz[0][b] += k0 * zj; kg[0][b] += k0 * gj;
+                            kz[1][b] += k1 * zj; kg[1][b] += k1 * gj;
+                            kz[2][b] += k2 * zj; kg[2][b] += k2 * gj;
+                            kz[3][b] += k3 * zj; kg[3][b] += k3 * gj;
+                        }
+                    }
+                } else {
+                    for (int64_t t = 0; t < ni; t++)
+                        for (int64_t j = 0; j < n; j++) {
+                            const REAL kij = Kq[(i0 + t) * n + j];
+#pragma omp simd
+                            for (int64_t b = 0; b < B; b++) { kz[t][b] += kij * zc[j][b]; kg[t][b] += kij * gc[j][b]; }
+                        }
                 }
-                const REAL ksi = ksq[i];
+                for (int64_t t = 0; t < ni; t++) {
+                    const int64_t i = i0 + t;
+                    const REAL ksi = ksq[i];
 #pragma omp simd
-                for (int64_t b = 0; b < B; b++) {
-                    const REAL rep = c * (zc[i][b] * ksi - kz[b]);
-                    dr[i][b] = (rep - rg * kg[b]) * in - gb * gc[i][b];
-                    d1[i][b] = (rep - kg[b]) * in - ibeta * gc[i][b];
+                    for (int64_t b = 0; b < B; b++) {
+                        const REAL rep = c * (zc[i][b] * ksi - kz[t][b]);
+                        dr[i][b] = (rep - rg * kg[t][b]) * in - gb * gc[i][b];
+                        d1[i][b] = (rep - kg[t][b]) * in - ibeta * gc[i][b];
+                    }
                 }
             }
             /* the ensemble-scaled step */
@@ -117,15 +140,21 @@ void bb_spos_update(int64_t G, int64_t n, int64_t D, int64_t nt, const REAL *res
                 } else {
                     for (int64_t b = 0; b < m; b++) { Gs[b] = 1; G1[b] = 1; }
                 }
+                REAL sq[B], gl[B], mc[B];   /* per coordinate, the same for every particle */
+                for (int64_t b = 0; b < m; b++) {
+                    const REAL gn = G1[b] < Gs[b] ? G1[b] : Gs[b];
+                    const REAL M = gn * lam[b] * ibeta;
+                    sq[b] = sqrt((REAL)2 * M);
+                    gl[b] = Gs[b] * lam[b];
+                    mc[b] = M;
+                }
                 for (int64_t i = i0; i < i1; i++) {
                     const int64_t r = (q * n + i) * D + d0;
                     const REAL *restrict xr = xi + r;
                     REAL *restrict out = zo + r;
                     for (int64_t b = 0; b < m; b++) {
-                        const REAL gn = G1[b] < Gs[b] ? G1[b] : Gs[b];
-                        const REAL M = gn * lam[b] * ibeta;
-                        REAL zz = xr[b] * sqrt((REAL)2 * M) + Gs[b] * lam[b] * dr[i][b];
-                        if (with_corr) zz += M * (zc[i][b] - mean[b]) * corrs[b];
+                        REAL zz = xr[b] * sq[b] + gl[b] * dr[i][b];
+                        if (with_corr) zz += mc[b] * (zc[i][b] - mean[b]) * corrs[b];
                         out[b] = zz + zc[i][b];
                     }
                 }
