@@ -49,6 +49,32 @@
         o2[j] += BB_RADIANCE(A2[j], KD2[j], KS2[j], s, wj, kf); \
     }
 
+/* The loss and its gradient for one light, every term in registers (no per-view arrays): the same
+ * expressions as SPEC_LOOP, the loss loops and the gradient loop below, in one pass. */
+#define ONE_LIGHT_LOOP(L2) \
+    _Pragma("omp simd") \
+    for (int64_t j = 0; j < m; j++) { \
+        const REAL rr = R[j], a = rr * rr, a2 = a * a, k = (REAL)0.5 * a, wj = W[j], wg = WG[j]; \
+        REAL s, sd = 0; \
+        BB_SPEC(rr, a, a2, k, NH2[j], NL[j], NV[j], s, sd, 1); \
+        const REAL d0 = BB_RADIANCE(A0[j], KD0[j], KS0[j], s, wj, kf) - Y0[j]; \
+        const REAL d1 = BB_RADIANCE(A1[j], KD1[j], KS1[j], s, wj, kf) - Y1[j]; \
+        const REAL d2 = BB_RADIANCE(A2[j], KD2[j], KS2[j], s, wj, kf) - Y2[j]; \
+        REAL h0, h1, h2; \
+        if (L2) { \
+            e[j] += wg * (d0 * d0 + d1 * d1 + d2 * d2); \
+            h0 = 2 * wg * d0; h1 = 2 * wg * d1; h2 = 2 * wg * d2; \
+        } else { \
+            e[j] += wg * (ABS(d0) + ABS(d1) + ABS(d2)); \
+            h0 = wg * SIGN(d0); h1 = wg * SIGN(d1); h2 = wg * SIGN(d2); \
+        } \
+        REAL gF = 0; \
+        BB_GRAD(h0, A0[j], KD0[j], KS0[j], s, wj, kf, akd0[j], aks0[j], gF); \
+        BB_GRAD(h1, A1[j], KD1[j], KS1[j], s, wj, kf, akd1[j], aks1[j], gF); \
+        BB_GRAD(h2, A2[j], KD2[j], KS2[j], s, wj, kf, akd2[j], aks2[j], gF); \
+        ar[j] += gF * sd; \
+    }
+
 struct args {
     int64_t mode, n, V, L, P, l2, grad, nb, flags;
     REAL kf;
@@ -84,6 +110,13 @@ static inline void block(const struct args *restrict q, const int64_t i, const i
     REAL sS[LMAX][BLK], sD[LMAX][BLK];  /* S and S * dlnS/dr per light, kept for the gradient pass */
     for (int64_t v = 0; v < V; v++) {
         const REAL *NV = nv + v * P + p0;
+        if (mode == MODE_LOSS && grad && L == 1) {  /* one light (a flash): radiance, loss and gradient in one loop */
+            const REAL *NL = nl + v * P + p0, *NH2 = nh2 + v * P + p0, *W = w + v * P + p0;
+            const REAL *A0 = amp + v * 3 * P + p0, *A1 = A0 + P, *A2 = A0 + 2 * P;
+            const REAL *Y0 = y + v * 3 * P + p0, *Y1 = Y0 + P, *Y2 = Y0 + 2 * P, *WG = wgt + v * P + p0;
+            if (l2) { ONE_LIGHT_LOOP(1) } else { ONE_LIGHT_LOOP(0) }
+            continue;
+        }
         {  /* radiance of this view, and the specular terms the gradient pass reuses */
             for (int64_t j = 0; j < BLK; j++) o0[j] = o1[j] = o2[j] = 0;
             for (int64_t l = 0; l < L; l++) {
