@@ -119,11 +119,10 @@ def _filtered(light, pyramid, l: Tensor, footprint: Tensor, bias: float) -> Tens
     f = (lev - lo)[..., None]
     k = lo.long()
     packed = _packed(light, pyramid)
-    upper = _pyramid_lookup(packed, uv, k + 1) * light.scale
-    lower = _pyramid_lookup(packed, uv, k.clamp_min(1)) * light.scale
+    upper, lower = _pyramid_lookup(packed, uv, torch.stack([k + 1, k.clamp_min(1)])) * light.scale
     base = k == 0
     if bool(base.any()):
-        lower = torch.where(base[..., None], light.eval(l), lower)
+        lower = torch.where(base[..., None], light.eval_uv(uv), lower)
     return lower * (1 - f) + upper * f
 
 
@@ -131,7 +130,8 @@ def _pyramid_lookup(packed, uv: Tensor, level: Tensor) -> Tensor:
     """Cell-centred bilinear look-up (periodic in u, clamped in v) of pyramid level ``level [...]`` (1 .. its
     length: each point its own) at ``uv [..., 2]``, from the :func:`_packed` pyramid."""
     flat, off, hs, ws = packed
-    hk, wk, ok = hs[level], ws[level], off[level]
+    lv = level.reshape(-1)
+    hk, wk, ok = (t.index_select(0, lv).reshape(level.shape) for t in (hs, ws, off))
     x = uv[..., 0] * wk - 0.5
     y = (uv[..., 1] * hk - 0.5).clamp_min(0).minimum(hk - 1)
     x0 = torch.floor(x)
@@ -143,8 +143,10 @@ def _pyramid_lookup(packed, uv: Tensor, level: Tensor) -> Tensor:
     x1 = (x0 + 1) % wi
     r0 = ok + y0.long() * wi
     r1 = r0 + wi
-    return (flat[r0 + x0] * (1 - fx) * (1 - fy) + flat[r0 + x1] * fx * (1 - fy) + flat[r1 + x0] * (1 - fx) * fy
-            + flat[r1 + x1] * fx * fy)
+    # the four corners in one gather (index_select: about 3x torch's advanced indexing here)
+    c = flat.index_select(0, torch.stack([r0 + x0, r0 + x1, r1 + x0, r1 + x1]).reshape(-1))
+    c = c.reshape(4, *level.shape, flat.shape[-1])
+    return c[0] * (1 - fx) * (1 - fy) + c[1] * fx * (1 - fy) + c[2] * (1 - fx) * fy + c[3] * fx * fy
 
 
 def _packed(light, pyramid):
@@ -239,12 +241,13 @@ def irradiance(light, n: Tensor) -> Tensor:
 
 def transfer(light, position: Tensor, normal: Tensor, geometric_normal: Tensor, view_dir: Tensor, mask: Tensor,
              occluder, *, samples: TransferSamples = TransferSamples(), eps: float = 1e-8,
-             chunk: int = 64) -> Tensor:
+             chunk: int = 128) -> Tensor:
     """The environment terms ``[CHANNELS, H, W]`` (float64) of one view: ``E``, then per roughness slot ``a``, ``b``.
 
     ``position, normal, geometric_normal, view_dir`` ``[3, H, W]`` (world, unit normals and view directions),
     ``mask [H, W]``; ``occluder`` has ``occluded_directions(points, normals, directions)`` (bool ``[N]`` or
-    ``None``: nothing occludes). Zero off the mask.
+    ``None``: nothing occludes). Zero off the mask. ``chunk`` pixels are done at a time (each pixel on its own:
+    the result does not depend on it; 128 measured 16 % faster than 64 on the bunny, and 512 twice as slow).
 
     Example:
         >>> from bayes_brdf.render.environment import EnvironmentLight
