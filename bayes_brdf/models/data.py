@@ -110,7 +110,15 @@ class ModelData:
         """The pixel weights of the residual sum: ``weight / g`` (Laplace) or ``weight / g^2`` (Gaussian)."""
         if self.noise is None:
             return self.weight
-        return self.weight / (self.noise if kind == "laplace" else self.noise * self.noise)
+        # made once per kind and kept while the same tensors hold the same values: the likelihood asks every step,
+        # and the mesh path keeps its compacted copy of the weights only while the same tensor comes again
+        key = (kind, id(self.weight), self.weight._version, id(self.noise), self.noise._version)
+        memo = self.__dict__.setdefault("_noise_weight", {})
+        hit = memo.get(kind)
+        if hit is None or hit[0] != key or hit[2] is not self.weight or hit[3] is not self.noise:
+            w = self.weight / (self.noise if kind == "laplace" else self.noise * self.noise)
+            hit = memo[kind] = (key, w, self.weight, self.noise)
+        return hit[1]
 
     def noise_log_norm(self) -> Tensor | float:
         """``sum w log g`` over pixels and channels: the normalising term of the per-pixel scales (0 without)."""

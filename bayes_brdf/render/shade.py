@@ -16,6 +16,7 @@ Example:
 """
 from __future__ import annotations
 
+import numbers
 from collections import OrderedDict
 from dataclasses import replace
 
@@ -321,10 +322,11 @@ def _compact_data(g: GBuffer, index: Tensor, target: Tensor, weight, kind: str):
     """Target and weight at the compacted pixels ``[1, 1, K, ...]`` and the loss of the pixels off the surface
     (they render 0, so it does not depend on the maps); kept on ``g`` while the same tensors come again
     (a sampler's every step)."""
+    scalar = isinstance(weight, numbers.Real)        # a number: the same weight whenever the value is
     wt = torch.as_tensor(weight, device=target.device, dtype=target.dtype)
-    key = (id(target), target._version, id(wt), wt._version, kind)
+    key = (id(target), target._version, ("value", float(weight)) if scalar else (id(wt), wt._version), kind)
     hit = g.__dict__.get("_compact_data")
-    if hit is not None and hit[0] == key and hit[1][0] is target and hit[1][1] is wt:
+    if hit is not None and hit[0] == key and hit[1][0] is target and (scalar or hit[1][1] is wt):
         return hit[2]
     V, (h, w) = g.num_views, g.resolution
     we = (wt.expand(V, h, w) if wt.dim() < 3 else wt).reshape(-1)

@@ -97,3 +97,21 @@ def test_infer_recovers_a_known_signal_dependent_noise_within_ten_percent():
     const = bb.infer(bb.models.per_texel(16, pixel_noise="constant"), obs, steps=200, progress=False)
     off = (const.noise_sigma / true_scale(q) - 1).abs()
     assert float(off.max()) > 0.25
+
+
+def test_noise_weight_is_made_once_and_follows_its_tensors():
+    """The likelihood asks for ``weight / g`` on every step: it is made once per kind (the mesh path keeps its
+    compacted copy only while the same tensor comes again), and made again when a tensor changes in place."""
+    obs, _ = noisy_photos(8, 3)
+    d = ModelData.from_observations(obs, dtype=torch.float64)
+    assert d.noise_weight() is d.weight                       # no per-pixel scales: the weights themselves
+    g = torch.rand(d.weight.shape, generator=G(2), dtype=torch.float64) + 0.5
+    d = d.with_noise(g)
+    w1, w2 = d.noise_weight("laplace"), d.noise_weight("gaussian")
+    assert d.noise_weight("laplace") is w1 and d.noise_weight("gaussian") is w2
+    torch.testing.assert_close(w1, d.weight / d.noise)
+    torch.testing.assert_close(w2, d.weight / d.noise ** 2)
+    d.noise.mul_(2.0)                                          # a user's in-place change is seen
+    w3 = d.noise_weight("laplace")
+    assert w3 is not w1
+    torch.testing.assert_close(w3, d.weight / d.noise)

@@ -115,3 +115,24 @@ def test_views_of_different_resolutions_are_rejected():
 def test_bad_map_shape_is_one_line_error():
     with pytest.raises(InputError, match="roughness"):
         SVBRDF(torch.rand(3, 4, 4), torch.rand(4, 4, 1), torch.rand(3, 4, 4), torch.rand(3, 4, 4))
+
+
+def test_mesh_loss_compacts_its_photos_once_for_a_number_weight():
+    """The gathered (mesh) path keeps the photos at its compacted pixels while the same target and weight come
+    again, also for a weight given as a number (a new tensor of it each call used to mean a new copy per call)."""
+    from bayes_brdf.render import collocated_views
+    from bayes_brdf.render.mesh import Mesh
+    from bayes_brdf.render.shade import shade_loss
+
+    mesh = Mesh.sphere()
+    views = collocated_views(2, 3 * mesh.radius, resolution=16, target=mesh.center, fov=45)
+    g = GBuffer.build(views, mesh)
+    maps = SVBRDF.constant(0.5, 0.4, dtype=torch.float64)
+    target = shade(maps, g)[0] * 1.1
+    first = shade_loss(maps, g, target, 2.0)
+    kept = g.__dict__["_compact_data"][2][0]
+    again = shade_loss(maps, g, target, 2.0)
+    assert g.__dict__["_compact_data"][2][0] is kept and torch.equal(first, again)
+    other = shade_loss(maps, g, target, 3.0)                  # another value: made again, and 1.5x the loss
+    assert g.__dict__["_compact_data"][2][0] is not kept
+    torch.testing.assert_close(other, 1.5 * first)
