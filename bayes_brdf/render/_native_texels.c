@@ -16,7 +16,7 @@
  *
  * Layout (contiguous; P pixels, T texels, n particles):
  *   kd, ks [n, 3, T] and r [n, T], or one constant texel ([n, 3, 1], [n, 1]; flags bits 0-2: kd, r, ks);
- *   flags bits 3-5: kd, r, ks need no gradient
+ *   flags bits 3-5: kd, r, ks need no gradient (not written; their pointers may be null)
  *   nl, nh2, w [V, L, P]; nv [V, P]; A = scale * (n.l) [V, L, 3, P]; y, gout-per-view [.., 3, P]; wgt [V, P]
  *   tidx int32 [P, 4] texel indices, tw [P, 4] bilinear weights
  *   plan: cstart [nchunk + 1] pixel offsets of the chunks; uoff [nchunk + 1] offsets of their texel rows;
@@ -379,7 +379,7 @@ int bb_shade_texels(int64_t mode, int64_t n, int64_t V, int64_t L, int64_t P, in
         const int mi = map_of(ch), c3 = ch < 3 ? ch : ch - 4, cons = (flags >> mi) & 1;
         const int64_t Tm = cons ? 1 : T;
         src[ch] = mi == 0 ? kd + c3 * Tm : mi == 1 ? r : ks + c3 * Tm;
-        dst[ch] = mi == 0 ? gkd + c3 * Tm : mi == 1 ? gr : gks + c3 * Tm;
+        dst[ch] = (flags & (8 << mi)) ? 0 : mi == 0 ? gkd + c3 * Tm : mi == 1 ? gr : gks + c3 * Tm;  /* unwanted: null */
         stride[ch] = mi == 1 ? Tm : 3 * Tm;
         q.slot[ch] = cons ? -1 : (int)q.nch++;
     }

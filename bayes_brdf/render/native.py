@@ -152,8 +152,8 @@ def _call(mode, maps, geo, ks_factor, *, y=None, wgt=None, gout=None, l2=False, 
     """Run a kernel. ``maps = (kd [n,3,P], r [n,P], ks [n,3,P])``, ``geo = (nl, nv, nh2, w, A)``; with
     ``taps`` (:class:`~bayes_brdf.render.texels.Taps` of the ``P`` pixels) the maps are texel maps
     ``[n, 3, T]``, ``[n, T]`` (or one constant texel, ``[n, 3, 1]``) read bilinearly by the texel kernel, and
-    ``no_grad`` names maps whose gradients are not wanted (``None`` from the pixel kernel, zeros from the texel
-    kernel). A ``1 x 1`` map is one value per particle (``[n, 3, 1]``, ``[n, 1]``) for both kernels.
+    ``no_grad`` names maps whose gradients are not wanted (returned as ``None``: neither kernel writes them). A
+    ``1 x 1`` map is one value per particle (``[n, 3, 1]``, ``[n, 1]``) for both kernels (flagged).
 
     Returns ``(images [n, V, 3, P] or None, energies [n, blocks] or None, gradients shaped like the maps)``."""
     kd, r, ks = maps
@@ -164,11 +164,12 @@ def _call(mode, maps, geo, ks_factor, *, y=None, wgt=None, gout=None, l2=False, 
     grad = mode == MODE_IMAGE_BWD or need_grad
     out = torch.empty(n, V, 3, P, dtype=dt) if mode == MODE_IMAGE_FWD else None
     nt = torch.get_num_threads()
+    extent = P if taps is None else max(m.shape[-1] for m in maps)      # values per channel of a full map
+    const = [m.shape[-1] == 1 and extent > 1 for m in maps]
+    flags = sum(1 << k for k, c in enumerate(const) if c) + sum(8 << k for k, f in enumerate(no_grad) if f)
     if taps is None:
         nb = (P + 63) // 64
         epart = torch.empty(n, nb, dtype=torch.float64) if mode == MODE_LOSS else None
-        const = [m.shape[-1] == 1 and P > 1 for m in maps]
-        flags = sum(1 << k for k, c in enumerate(const) if c) + sum(8 << k for k, f in enumerate(no_grad) if f)
         # a constant map's gradient comes as per-block partial sums [n, c, blocks], summed here
         grads = [None if f or not grad else torch.empty(*m.shape[:-1], nb, dtype=dt) if c else torch.empty_like(m)
                  for m, c, f in zip(maps, const, no_grad)]
@@ -176,13 +177,10 @@ def _call(mode, maps, geo, ks_factor, *, y=None, wgt=None, gout=None, l2=False, 
                  *map(ptr, (kd, r, ks, nl, nv, nh2, w, amp, y, wgt, gout, out, epart, *grads)))
         grads = [g.sum(-1, keepdim=True) if g is not None and c else g for g, c in zip(grads, const)]
         return out, epart, grads
-    T = max(m.shape[-1] for m in maps)
-    flags = sum(1 << k for k, m in enumerate(maps) if m.shape[-1] == 1 and T > 1) + \
-        sum(8 << k for k, f in enumerate(no_grad) if f)
+    T = extent
     plan = taps.plan
     epart = torch.empty(n, plan.nchunk, dtype=torch.float64) if mode == MODE_LOSS else None
-    grads = [(torch.zeros_like if f else torch.empty_like)(m) for m, f in zip(maps, no_grad)] if grad \
-        else [None, None, None]
+    grads = [None if f or not grad else torch.empty_like(m) for m, f in zip(maps, no_grad)]
     lanes = texel_lanes(dt, n)
     env = env_layout(env, value_major=lanes == 16)
     status = _texel_lib(dt, lanes)(mode, n, V, L, P, int(ks_factor), int(l2), int(need_grad), nt, T, flags, plan.nchunk,
