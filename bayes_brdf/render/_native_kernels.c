@@ -49,6 +49,18 @@
         o2[j] += BB_RADIANCE(A2[j], KD2[j], KS2[j], s, wj, kf); \
     }
 
+/* One pixel's loss terms from its residuals d = R - y: the weighted loss into E and its gradient
+ * d loss / d R into H (L2: squared, else L1) */
+#define LOSS_TERMS(L2, wg, d0, d1, d2, E, H0, H1, H2) do { \
+        if (L2) { \
+            (E) += (wg) * ((d0) * (d0) + (d1) * (d1) + (d2) * (d2)); \
+            (H0) = 2 * (wg) * (d0); (H1) = 2 * (wg) * (d1); (H2) = 2 * (wg) * (d2); \
+        } else { \
+            (E) += (wg) * (ABS(d0) + ABS(d1) + ABS(d2)); \
+            (H0) = (wg) * SIGN(d0); (H1) = (wg) * SIGN(d1); (H2) = (wg) * SIGN(d2); \
+        } \
+    } while (0)
+
 /* The loss and its gradient for one light, every term in registers (no per-view arrays): the same
  * expressions as SPEC_LOOP, the loss loops and the gradient loop below, in one pass. */
 #define ONE_LIGHT_LOOP(L2) \
@@ -61,18 +73,20 @@
         const REAL d1 = BB_RADIANCE(A1[j], KD1[j], KS1[j], s, wj, kf) - Y1[j]; \
         const REAL d2 = BB_RADIANCE(A2[j], KD2[j], KS2[j], s, wj, kf) - Y2[j]; \
         REAL h0, h1, h2; \
-        if (L2) { \
-            e[j] += wg * (d0 * d0 + d1 * d1 + d2 * d2); \
-            h0 = 2 * wg * d0; h1 = 2 * wg * d1; h2 = 2 * wg * d2; \
-        } else { \
-            e[j] += wg * (ABS(d0) + ABS(d1) + ABS(d2)); \
-            h0 = wg * SIGN(d0); h1 = wg * SIGN(d1); h2 = wg * SIGN(d2); \
-        } \
+        LOSS_TERMS(L2, wg, d0, d1, d2, e[j], h0, h1, h2); \
         REAL gF = 0; \
         BB_GRAD(h0, A0[j], KD0[j], KS0[j], s, wj, kf, akd0[j], aks0[j], gF); \
         BB_GRAD(h1, A1[j], KD1[j], KS1[j], s, wj, kf, akd1[j], aks1[j], gF); \
         BB_GRAD(h2, A2[j], KD2[j], KS2[j], s, wj, kf, akd2[j], aks2[j], gF); \
         ar[j] += gF * sd; \
+    }
+
+/* The loss terms of a view from the radiance arrays o (several lights) */
+#define RESIDUAL_LOOP(L2) \
+    _Pragma("omp simd") \
+    for (int64_t j = 0; j < m; j++) { \
+        const REAL d0 = o0[j] - Y0[j], d1 = o1[j] - Y1[j], d2 = o2[j] - Y2[j]; \
+        LOSS_TERMS(L2, WG[j], d0, d1, d2, e[j], g0[j], g1[j], g2[j]); \
     }
 
 struct args {
@@ -133,21 +147,7 @@ static inline void block(const struct args *restrict q, const int64_t i, const i
         }
         if (mode == MODE_LOSS) {
             const REAL *Y0 = y + v * 3 * P + p0, *Y1 = Y0 + P, *Y2 = Y0 + 2 * P, *WG = wgt + v * P + p0;
-            if (l2) {
-#pragma omp simd
-                for (int64_t j = 0; j < m; j++) {
-                    const REAL d0 = o0[j] - Y0[j], d1 = o1[j] - Y1[j], d2 = o2[j] - Y2[j];
-                    e[j] += WG[j] * (d0 * d0 + d1 * d1 + d2 * d2);
-                    g0[j] = 2 * WG[j] * d0; g1[j] = 2 * WG[j] * d1; g2[j] = 2 * WG[j] * d2;
-                }
-            } else {
-#pragma omp simd
-                for (int64_t j = 0; j < m; j++) {
-                    const REAL d0 = o0[j] - Y0[j], d1 = o1[j] - Y1[j], d2 = o2[j] - Y2[j];
-                    e[j] += WG[j] * (ABS(d0) + ABS(d1) + ABS(d2));
-                    g0[j] = WG[j] * SIGN(d0); g1[j] = WG[j] * SIGN(d1); g2[j] = WG[j] * SIGN(d2);
-                }
-            }
+            if (l2) { RESIDUAL_LOOP(1) } else { RESIDUAL_LOOP(0) }
         } else {
             const REAL *GO = gout + ((i * V + v) * 3) * P + p0;
             for (int64_t j = 0; j < m; j++) { g0[j] = GO[j]; g1[j] = GO[P + j]; g2[j] = GO[2 * P + j]; }
