@@ -146,22 +146,19 @@ class _UnpackFn(torch.autograd.Function):
             xs.append(x)
             ss.append(sv)
         ctx.save_for_backward(*(v for v in ss if v is not None))
-        ctx.meta = (plan, kernels, [v is not None for v in ss], D)
+        ctx.meta = (plan, kernels, z.shape, z.dtype)
         return (*xs, ladj)
 
     @staticmethod
     def backward(ctx, *grads):
-        plan, kernels, interval, D = ctx.meta
-        saved = iter(ctx.saved_tensors)
-        gl = grads[-1]
-        n = gl.shape[0] if gl is not None else next(g.shape[0] for g in grads if g is not None)
-        dt = ctx.saved_tensors[0].dtype if ctx.saved_tensors else next(g.dtype for g in grads if g is not None)
+        plan, kernels, (n, D), dt = ctx.meta
+        saved = iter(ctx.saved_tensors)           # the sigmoids of the interval sites, in site order
         gz = torch.empty(n, D, dtype=dt)
-        gl = None if gl is None else gl.to(dt).contiguous()
+        gl = None if grads[-1] is None else grads[-1].to(dt).contiguous()
         nt = torch.get_num_threads()
-        for (off, size, _, _, width), iv, gx in zip(plan, interval, grads[:-1]):
+        for (off, size, _, lo, width), gx in zip(plan, grads[:-1]):
             cols = gz[:, off:off + size]
-            if not iv:
+            if lo is None:                        # unconstrained: the gradient itself
                 if gx is None:
                     cols.zero_()
                 else:
