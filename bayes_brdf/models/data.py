@@ -112,13 +112,12 @@ class ModelData:
             return self.weight
         # made once per kind and kept while the same tensors hold the same values: the likelihood asks every step,
         # and the mesh path keeps its compacted copy of the weights only while the same tensor comes again
-        key = (kind, id(self.weight), self.weight._version, id(self.noise), self.noise._version)
+        w, g = self.weight, self.noise
         memo = self.__dict__.setdefault("_noise_weight", {})
         hit = memo.get(kind)
-        if hit is None or hit[0] != key or hit[2] is not self.weight or hit[3] is not self.noise:
-            w = self.weight / (self.noise if kind == "laplace" else self.noise * self.noise)
-            hit = memo[kind] = (key, w, self.weight, self.noise)
-        return hit[1]
+        if hit is None or hit[0] is not w or hit[1] is not g or hit[2] != (w._version, g._version):
+            hit = memo[kind] = (w, g, (w._version, g._version), w / (g if kind == "laplace" else g * g))
+        return hit[3]
 
     def noise_log_norm(self) -> Tensor | float:
         """``sum w log g`` over pixels and channels: the normalising term of the per-pixel scales (0 without)."""
