@@ -236,115 +236,200 @@ static inline void env_lookup(const struct targs *restrict q, const REAL *restri
 #endif
 }
 
-static void chunk(const struct targs *restrict q, const int64_t c)
+/* channel ch's place in a texel row under `flags`, or -1 for a constant map: the maps' channels that are not
+ * constant, in order (a constant expression where flags is one, so a specialised chunk_body has no look-ups) */
+static inline int slot_of(int ch, int64_t flags)
 {
-    const int64_t V = q->V, L = q->L, P = q->P, np = q->np, row = q->row, mode = q->mode, grad = q->grad;
+    if ((flags >> map_of(ch)) & 1) return -1;
+    int s = 0;
+    for (int j = 0; j < ch; j++) s += !((flags >> map_of(j)) & 1);
+    return s;
+}
+
+/* What one pixel gives a block of particles: its energy and the gradients of its 7 channels */
+struct pres { vec e, acc[7]; };
+
+/* One pixel p for the block of particles at lane b: its radiance (written out in MODE_IMAGE_FWD), energy and
+ * channel gradients. It writes no gradient: the caller deposits them (deposit), after every block's pixel. */
+static inline __attribute__((always_inline)) void pixel(const struct targs *restrict q, const int64_t p,
+                                                        const int64_t b, const int64_t mode, const int64_t L,
+                                                        const int envp, const int64_t l2, const int64_t flags,
+                                                        struct pres *restrict res)
+{
+    const int64_t V = q->V, P = q->P, np = q->np, row = q->row, grad = q->grad;
     const REAL kf = q->kf;
-    REAL *restrict G = q->G + q->uoff[c] * row, *restrict GC = q->GC + c * 7 * np;
-    double *restrict ES = q->ES + c * np;
-    if (grad) memset(G, 0, (size_t)((q->uoff[c + 1] - q->uoff[c]) * row) * sizeof(REAL));
-    for (int64_t b = 0; b < np; b += LANES) {   /* a block of particles over the chunk's pixels */
-        dvec es = {0};   /* its energies and its constant maps' gradients, summed in pixel order */
-        vec gcs[7] = {{0}};
-        for (int64_t p = q->cstart[c]; p < q->cstart[c + 1]; p++) {
-            const int32_t *ti = q->tidx + p * 4, *li = q->lidx + p * 4;
-            const REAL *tw = q->tw + p * 4;
-            const REAL w0 = tw[0], w1 = tw[1], w2 = tw[2], w3 = tw[3];
-            const REAL *M0 = q->M + ti[0] * row, *M1 = q->M + ti[1] * row, *M2 = q->M + ti[2] * row,
-                       *M3 = q->M + ti[3] * row;
-            REAL *G0 = G + li[0] * row, *G1 = G + li[1] * row, *G2 = G + li[2] * row, *G3 = G + li[3] * row;
-            vec val[7];
-            for (int ch = 0; ch < 7; ch++) {
-                const int64_t o = q->slot[ch] * np + b;
-                val[ch] = q->slot[ch] < 0 ? LD(q->C + ch * np + b)
-                                          : w0 * LD(M0 + o) + w1 * LD(M1 + o) + w2 * LD(M2 + o) + w3 * LD(M3 + o);
+    const int32_t *ti = q->tidx + p * 4;
+    const REAL *tw = q->tw + p * 4;
+    const REAL w0 = tw[0], w1 = tw[1], w2 = tw[2], w3 = tw[3];
+    const REAL *M0 = q->M + ti[0] * row, *M1 = q->M + ti[1] * row, *M2 = q->M + ti[2] * row, *M3 = q->M + ti[3] * row;
+    vec val[7];
+    for (int ch = 0; ch < 7; ch++) {
+        const int64_t o = slot_of(ch, flags) * np + b;
+        val[ch] = slot_of(ch, flags) < 0 ? LD(q->C + ch * np + b)
+                                         : w0 * LD(M0 + o) + w1 * LD(M1 + o) + w2 * LD(M2 + o) + w3 * LD(M3 + o);
+    }
+    const vec kd0 = val[0], kd1 = val[1], kd2 = val[2], rr = val[3], ks0 = val[4], ks1 = val[5], ks2 = val[6];
+    const vec a = rr * rr, a2 = a * a, k = (REAL)0.5 * a;
+    vec akd0 = {0}, akd1 = {0}, akd2 = {0}, aks0 = {0}, aks1 = {0}, aks2 = {0}, ar = {0}, e = {0};
+    for (int64_t v = 0; v < V; v++) {
+        const REAL nv = q->nv[v * P + p];
+        vec o0 = {0}, o1 = {0}, o2 = {0}, g0 = {0}, g1 = {0}, g2 = {0}, sS[LMAX], sD[LMAX];
+        vec ea[6], ed[6];
+        REAL E0 = 0, E1 = 0, E2 = 0;
+        if (envp) {   /* the environment: kd (1 - kf ks) / pi E + ks a(r) + b(r) */
+            const REAL *ep = q->env + (v * P + p) * q->ech;
+            E0 = ep[0] * BB_INV_PI; E1 = ep[1] * BB_INV_PI; E2 = ep[2] * BB_INV_PI;
+            env_lookup(q, ep, rr, ea, ed);
+            o0 += kd0 * (1 - kf * ks0) * E0 + ks0 * ea[0] + ea[3];
+            o1 += kd1 * (1 - kf * ks1) * E1 + ks1 * ea[1] + ea[4];
+            o2 += kd2 * (1 - kf * ks2) * E2 + ks2 * ea[2] + ea[5];
+        }
+        for (int64_t l = 0; l < L; l++) {
+            const int64_t vl = v * L + l;
+            const REAL nl = q->nl[vl * P + p], nh2 = q->nh2[vl * P + p], wj = q->w[vl * P + p];
+            const REAL *A = q->amp + vl * 3 * P + p;
+            vec s, sd = {0};
+            BB_SPEC(rr, a, a2, k, nh2, nl, nv, s, sd, grad);
+            sS[l] = s; sD[l] = sd;
+            o0 += BB_RADIANCE(A[0], kd0, ks0, s, wj, kf);
+            o1 += BB_RADIANCE(A[P], kd1, ks1, s, wj, kf);
+            o2 += BB_RADIANCE(A[2 * P], kd2, ks2, s, wj, kf);
+        }
+        if (mode == MODE_IMAGE_FWD) {
+            for (int64_t i = b; i < b + LANES && i < q->n; i++) {
+                REAL *out = q->out + ((i * V + v) * 3) * P + p;
+                out[0] = o0[i - b]; out[P] = o1[i - b]; out[2 * P] = o2[i - b];
             }
-            const vec kd0 = val[0], kd1 = val[1], kd2 = val[2], rr = val[3], ks0 = val[4], ks1 = val[5], ks2 = val[6];
-            const vec a = rr * rr, a2 = a * a, k = (REAL)0.5 * a;
-            vec akd0 = {0}, akd1 = {0}, akd2 = {0}, aks0 = {0}, aks1 = {0}, aks2 = {0}, ar = {0}, e = {0};
-            for (int64_t v = 0; v < V; v++) {
-                const REAL nv = q->nv[v * P + p];
-                vec o0 = {0}, o1 = {0}, o2 = {0}, g0 = {0}, g1 = {0}, g2 = {0}, sS[LMAX], sD[LMAX];
-                vec ea[6], ed[6];
-                REAL E0 = 0, E1 = 0, E2 = 0;
-                if (q->env) {   /* the environment: kd (1 - kf ks) / pi E + ks a(r) + b(r) */
-                    const REAL *ep = q->env + (v * P + p) * q->ech;
-                    E0 = ep[0] * BB_INV_PI; E1 = ep[1] * BB_INV_PI; E2 = ep[2] * BB_INV_PI;
-                    env_lookup(q, ep, rr, ea, ed);
-                    o0 += kd0 * (1 - kf * ks0) * E0 + ks0 * ea[0] + ea[3];
-                    o1 += kd1 * (1 - kf * ks1) * E1 + ks1 * ea[1] + ea[4];
-                    o2 += kd2 * (1 - kf * ks2) * E2 + ks2 * ea[2] + ea[5];
-                }
-                for (int64_t l = 0; l < L; l++) {
-                    const int64_t vl = v * L + l;
-                    const REAL nl = q->nl[vl * P + p], nh2 = q->nh2[vl * P + p], wj = q->w[vl * P + p];
-                    const REAL *A = q->amp + vl * 3 * P + p;
-                    vec s, sd = {0};
-                    BB_SPEC(rr, a, a2, k, nh2, nl, nv, s, sd, grad);
-                    sS[l] = s; sD[l] = sd;
-                    o0 += BB_RADIANCE(A[0], kd0, ks0, s, wj, kf);
-                    o1 += BB_RADIANCE(A[P], kd1, ks1, s, wj, kf);
-                    o2 += BB_RADIANCE(A[2 * P], kd2, ks2, s, wj, kf);
-                }
-                if (mode == MODE_IMAGE_FWD) {
-                    for (int64_t i = b; i < b + LANES && i < q->n; i++) {
-                        REAL *out = q->out + ((i * V + v) * 3) * P + p;
-                        out[0] = o0[i - b]; out[P] = o1[i - b]; out[2 * P] = o2[i - b];
-                    }
-                    continue;
-                }
-                if (mode == MODE_LOSS) {
-                    const REAL *Y = q->y + v * 3 * P + p, wg = q->wgt[v * P + p];
-                    const vec d0 = o0 - Y[0], d1 = o1 - Y[P], d2 = o2 - Y[2 * P];
-                    if (q->l2) {
-                        e += wg * (d0 * d0 + d1 * d1 + d2 * d2);
-                        g0 = 2 * wg * d0; g1 = 2 * wg * d1; g2 = 2 * wg * d2;
-                    } else {
-                        const vec s0 = VSIGN(d0), s1 = VSIGN(d1), s2 = VSIGN(d2);
-                        e += wg * (s0 * d0 + s1 * d1 + s2 * d2);
-                        g0 = wg * s0; g1 = wg * s1; g2 = wg * s2;
-                    }
-                } else {
-                    for (int64_t i = b; i < b + LANES && i < q->n; i++) {
-                        const REAL *go = q->gout + ((i * V + v) * 3) * P + p;
-                        g0[i - b] = go[0]; g1[i - b] = go[P]; g2[i - b] = go[2 * P];
-                    }
-                }
-                if (!grad) continue;
-                if (q->env) {
-                    akd0 += g0 * (1 - kf * ks0) * E0; akd1 += g1 * (1 - kf * ks1) * E1; akd2 += g2 * (1 - kf * ks2) * E2;
-                    aks0 += g0 * (ea[0] - kf * kd0 * E0); aks1 += g1 * (ea[1] - kf * kd1 * E1);
-                    aks2 += g2 * (ea[2] - kf * kd2 * E2);
-                    ar += g0 * (ks0 * ed[0] + ed[3]) + g1 * (ks1 * ed[1] + ed[4]) + g2 * (ks2 * ed[2] + ed[5]);
-                }
-                for (int64_t l = 0; l < L; l++) {
-                    const int64_t vl = v * L + l;
-                    const REAL wj = q->w[vl * P + p], *A = q->amp + vl * 3 * P + p;
-                    vec gF = {0};
-                    BB_GRAD(g0, A[0], kd0, ks0, sS[l], wj, kf, akd0, aks0, gF);
-                    BB_GRAD(g1, A[P], kd1, ks1, sS[l], wj, kf, akd1, aks1, gF);
-                    BB_GRAD(g2, A[2 * P], kd2, ks2, sS[l], wj, kf, akd2, aks2, gF);
-                    ar += gF * sD[l];
-                }
+            continue;
+        }
+        if (mode == MODE_LOSS) {
+            const REAL *Y = q->y + v * 3 * P + p, wg = q->wgt[v * P + p];
+            const vec d0 = o0 - Y[0], d1 = o1 - Y[P], d2 = o2 - Y[2 * P];
+            if (l2) {
+                e += wg * (d0 * d0 + d1 * d1 + d2 * d2);
+                g0 = 2 * wg * d0; g1 = 2 * wg * d1; g2 = 2 * wg * d2;
+            } else {
+                const vec s0 = VSIGN(d0), s1 = VSIGN(d1), s2 = VSIGN(d2);
+                e += wg * (s0 * d0 + s1 * d1 + s2 * d2);
+                g0 = wg * s0; g1 = wg * s1; g2 = wg * s2;
             }
-            if (mode == MODE_LOSS) es += __builtin_convertvector(e, dvec);
-            if (!grad) continue;
-            const vec acc[7] = {akd0, akd1, akd2, ar, aks0, aks1, aks2};
-            for (int ch = 0; ch < 7; ch++) {
-                if (q->flags & (8 << map_of(ch))) continue;
-                const vec g = acc[ch];
-                if (q->slot[ch] < 0) {
-                    gcs[ch] += g;
-                } else {
-                    const int64_t o = q->slot[ch] * np + b;
-                    ST(G0 + o, LD(G0 + o) + w0 * g); ST(G1 + o, LD(G1 + o) + w1 * g);
-                    ST(G2 + o, LD(G2 + o) + w2 * g); ST(G3 + o, LD(G3 + o) + w3 * g);
-                }
+        } else {
+            for (int64_t i = b; i < b + LANES && i < q->n; i++) {
+                const REAL *go = q->gout + ((i * V + v) * 3) * P + p;
+                g0[i - b] = go[0]; g1[i - b] = go[P]; g2[i - b] = go[2 * P];
             }
         }
-        *(dvecu *)(ES + b) = es;
-        for (int ch = 0; ch < 7; ch++) ST(GC + ch * np + b, gcs[ch]);
+        if (!grad) continue;
+        if (envp) {
+            akd0 += g0 * (1 - kf * ks0) * E0; akd1 += g1 * (1 - kf * ks1) * E1; akd2 += g2 * (1 - kf * ks2) * E2;
+            aks0 += g0 * (ea[0] - kf * kd0 * E0); aks1 += g1 * (ea[1] - kf * kd1 * E1);
+            aks2 += g2 * (ea[2] - kf * kd2 * E2);
+            ar += g0 * (ks0 * ed[0] + ed[3]) + g1 * (ks1 * ed[1] + ed[4]) + g2 * (ks2 * ed[2] + ed[5]);
+        }
+        for (int64_t l = 0; l < L; l++) {
+            const int64_t vl = v * L + l;
+            const REAL wj = q->w[vl * P + p], *A = q->amp + vl * 3 * P + p;
+            vec gF = {0};
+            BB_GRAD(g0, A[0], kd0, ks0, sS[l], wj, kf, akd0, aks0, gF);
+            BB_GRAD(g1, A[P], kd1, ks1, sS[l], wj, kf, akd1, aks1, gF);
+            BB_GRAD(g2, A[2 * P], kd2, ks2, sS[l], wj, kf, akd2, aks2, gF);
+            ar += gF * sD[l];
+        }
     }
+    res->e = e;
+    res->acc[0] = akd0; res->acc[1] = akd1; res->acc[2] = akd2; res->acc[3] = ar;
+    res->acc[4] = aks0; res->acc[5] = aks1; res->acc[6] = aks2;
+}
+
+/* Pixel p's results into the block's sums: its energy, its constant maps' gradients, and its texel maps'
+ * gradients into the chunk's rows of its four taps */
+static inline __attribute__((always_inline)) void deposit(const struct targs *restrict q, REAL *restrict G,
+                                                          const int64_t p, const int64_t b, const int64_t mode,
+                                                          const int64_t flags, const struct pres *restrict res,
+                                                          dvec *es, vec gcs[7])
+{
+    const int64_t np = q->np, row = q->row;
+    if (mode == MODE_LOSS) *es += __builtin_convertvector(res->e, dvec);
+    if (!q->grad) return;
+    const int32_t *li = q->lidx + p * 4;
+    const REAL *tw = q->tw + p * 4;
+    const REAL w0 = tw[0], w1 = tw[1], w2 = tw[2], w3 = tw[3];
+    REAL *G0 = G + li[0] * row, *G1 = G + li[1] * row, *G2 = G + li[2] * row, *G3 = G + li[3] * row;
+    for (int ch = 0; ch < 7; ch++) {
+        if (flags & (8 << map_of(ch))) continue;
+        const vec g = res->acc[ch];
+        if (slot_of(ch, flags) < 0) {
+            gcs[ch] += g;
+        } else {
+            const int64_t o = slot_of(ch, flags) * np + b;
+            ST(G0 + o, LD(G0 + o) + w0 * g); ST(G1 + o, LD(G1 + o) + w1 * g);
+            ST(G2 + o, LD(G2 + o) + w2 * g); ST(G3 + o, LD(G3 + o) + w3 * g);
+        }
+    }
+}
+
+/* nb (1-3) blocks of particles from lane b over the chunk's pixels p0..p1: each pixel is shaded for every block,
+ * then deposited block by block, so a block's sums are in pixel order as with one block at a time. A pixel's
+ * scalar work (its taps, weights and geometry) is shared by the blocks, and their chains of dependent operations
+ * are in flight together: 20 particles on 16 lanes, whose second block holds 4, cost 0.8 of two passes. */
+static inline __attribute__((always_inline)) void blocks(const struct targs *restrict q, REAL *restrict G,
+                                                         REAL *restrict GC, double *restrict ES, const int64_t b,
+                                                         const int nb, const int64_t p0, const int64_t p1,
+                                                         const int64_t mode, const int64_t L, const int envp,
+                                                         const int64_t l2, const int64_t flags)
+{
+    const int64_t np = q->np;
+    dvec es[3] = {{0}};   /* the blocks' energies and constant maps' gradients, summed in pixel order */
+    vec gcs[3][7] = {{{0}}};
+    for (int64_t p = p0; p < p1; p++) {
+        struct pres r[3];
+        for (int j = 0; j < nb; j++) pixel(q, p, b + j * LANES, mode, L, envp, l2, flags, &r[j]);
+        for (int j = 0; j < nb; j++) deposit(q, G, p, b + j * LANES, mode, flags, &r[j], &es[j], gcs[j]);
+    }
+    for (int j = 0; j < nb; j++) {
+        *(dvecu *)(ES + b + j * LANES) = es[j];
+        for (int ch = 0; ch < 7; ch++) ST(GC + ch * np + b + j * LANES, gcs[j][ch]);
+    }
+}
+
+/* One chunk of pixels. Written once for every case; chunk() calls it with the common cases' mode, lights,
+ * environment, loss and flags as constants, so that the compiler drops the branches and the per-light arrays
+ * and keeps more of the blocks' terms in registers. */
+static inline __attribute__((always_inline)) void chunk_body(const struct targs *restrict q, const int64_t c,
+                                                             const int64_t mode, const int64_t L, const int envp,
+                                                             const int64_t l2, const int64_t flags)
+{
+    const int64_t np = q->np, row = q->row;
+    REAL *restrict G = q->G + q->uoff[c] * row, *restrict GC = q->GC + c * 7 * np;
+    double *restrict ES = q->ES + c * np;
+    const int64_t p0 = q->cstart[c], p1 = q->cstart[c + 1];
+    if (q->grad) memset(G, 0, (size_t)((q->uoff[c + 1] - q->uoff[c]) * row) * sizeof(REAL));
+    for (int64_t b = 0; b < np;) {   /* the particles in groups of up to 3 blocks */
+        const int64_t nb = (np - b) / LANES;
+        if (nb >= 3) { blocks(q, G, GC, ES, b, 3, p0, p1, mode, L, envp, l2, flags); b += 3 * LANES; }
+        else if (nb == 2) { blocks(q, G, GC, ES, b, 2, p0, p1, mode, L, envp, l2, flags); b += 2 * LANES; }
+        else { blocks(q, G, GC, ES, b, 1, p0, p1, mode, L, envp, l2, flags); b += LANES; }
+    }
+}
+
+static void chunk(const struct targs *restrict q, const int64_t c)
+{
+    /* the fits' cases with constants: one light (a flash) or none (an environment alone), L1 loss, and the maps
+     * all per texel or the specular constant (without its gradient) */
+    const int64_t f = q->flags;
+    if (q->mode == MODE_LOSS && !q->l2 && (f == 0 || f == (4 | 32))) {
+        if (q->L == 1 && !q->env) {
+            if (f == 0) chunk_body(q, c, MODE_LOSS, 1, 0, 0, 0);
+            else chunk_body(q, c, MODE_LOSS, 1, 0, 0, 4 | 32);
+            return;
+        }
+        if (q->L == 0 && q->env) {
+            if (f == 0) chunk_body(q, c, MODE_LOSS, 0, 1, 0, 0);
+            else chunk_body(q, c, MODE_LOSS, 0, 1, 0, 4 | 32);
+            return;
+        }
+    }
+    chunk_body(q, c, q->mode, q->L, q->env != 0, q->l2, f);
 }
 
 /* The widest vector the compiler was allowed (-march): 64 bytes with AVX-512, else 32 */

@@ -343,6 +343,37 @@ def test_sixteen_lanes_give_the_eight_lanes_bits(monkeypatch):
         assert torch.equal(a, b)
 
 
+@pytest.mark.needs_native(kernel="texels")
+@pytest.mark.parametrize("light", ["flash", "environment"])
+@pytest.mark.parametrize("n", [5, 20, 37])
+def test_texel_kernel_fit_cases_match_eager(light, n, monkeypatch):
+    """The cases a fit runs, which the texel kernel compiles with their options as constants: L1 loss, one
+    flash per view or an environment alone, albedo and roughness per texel, a constant specular per particle
+    whose gradient nobody wants, over particle counts that make one, two and three blocks of lanes (8 or 16):
+    the loss and the maps' gradients equal the eager reference's."""
+    from bayes_brdf.render import native
+    calls = []
+    real = native._call
+    monkeypatch.setattr(native, "_call", lambda *a, **k: calls.append(k.get("taps") is not None) or real(*a, **k))
+    env = EnvironmentLight(_random_map(16, 32), to_world=z_up(25.0))
+    base = collocated_views(3, 2.5, resolution=10, fov=70, method="sobol", power=20.0)   # perspective: taps
+    views = base if light == "flash" else [View(v.camera, (env,), name=v.name) for v in base]
+    g = GBuffer.build(views, PlanarSample(2.0), dtype=torch.float64)
+    gen = torch.Generator().manual_seed(n)
+    kd, r, _, flat = _random_maps(n, 7, gen, torch.float64)
+    ks = 0.04 + 0.3 * torch.rand(n, 3, 1, 1, generator=gen, dtype=torch.float64)
+    y = 0.3 * torch.rand(3, 10, 10, 3, generator=gen, dtype=torch.float64)
+    out = []
+    for backend in ("eager", "auto"):
+        ps = [t.clone().requires_grad_() for t in (kd, r)]
+        loss = shade_loss(SVBRDF(*ps[:1], ps[1], ks, flat), g, y, kind="l1", backend=backend)
+        (loss * torch.arange(1.0, n + 1, dtype=loss.dtype)).sum().backward()
+        out.append((loss.detach(), *[p.grad for p in ps]))
+    assert calls == [True]                     # the texel kernel
+    for a, b in zip(*out):
+        torch.testing.assert_close(b, a, rtol=1e-10, atol=1e-12)
+
+
 def _level_by_level(light, pyr, l, footprint, bias):
     """The filtered look-up as its definition: every level ``k`` (0: the map, ``k``: ``pyr[k - 1]`` read
     bilinearly at cell centres) weighted by the tent ``max(0, 1 - |lev - k|)``, summed level by level."""
