@@ -26,7 +26,10 @@ latent space as MaterialGAN does (from ``w_avg`` and zero noise, Adam with ``pro
 ``project_alternate = 10``; the default 0 steps both every time, measured better here),
 minimising the model's own energy (its likelihood and prior,
 i.e. a MAP estimate), and the particles are that point plus ``init_spread`` (in units of
-``w_std`` for W+, of 1 for the noise) of seeded Gaussian jitter.
+``w_std`` for W+, of 1 for the noise) of seeded Gaussian jitter. The default 0.3 is wide enough that a run of
+the default length ends with the std maps a longer run gives; from 0.05 the ensemble spreads out over
+thousands of steps (the W+ prior is flat) and 500 steps left the roughness std 80x too small
+(docs/calibration.md).
 
 Example:
     >>> m = latent_decoder()
@@ -141,7 +144,7 @@ class LatentDecoder(ObservedModel):
     project_steps: int = 300
     project_lr: float = 0.02
     project_alternate: int = 0                        # 0: every site every step; k: k steps per site in turn
-    init_spread: float = 0.05
+    init_spread: float = 0.3                          # x w_std for W+ (0.05 before: a collapsed std map, docs)
     normals: str = "decoded"                          # "decoded" (the generator's) or "flat" (the surface's own:
     #                                                   what an environment light needs, its transfer is precomputed)
 
