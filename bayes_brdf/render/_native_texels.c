@@ -65,7 +65,6 @@ struct targs {
     const int64_t *cstart, *uoff;
     const REAL *nl, *nv, *nh2, *w, *amp, *y, *wgt, *gout;
     REAL *out;
-    int slot[7];       /* channel -> its place in a texel row, or -1 (a constant map) */
     const REAL *M;     /* maps texel-major [T][nch][np] */
     const REAL *C;     /* constant channels [7][np] */
     REAL *G;           /* gradient rows [rows][nch][np] */
@@ -455,7 +454,7 @@ int bb_shade_texels(int64_t mode, int64_t n, int64_t V, int64_t L, int64_t P, in
     const int64_t np = (n + LANES - 1) / LANES * LANES;
     struct targs q = {mode, n, V, L, P, T, l2, (mode == MODE_IMAGE_BWD) || (mode == MODE_LOSS && need_grad),
                       flags, np, 0, 0, nchunk, ks_factor ? (REAL)1 : (REAL)0, tidx, lidx, tw, cstart, uoff,
-                      nl, nv, nh2, w, amp, y, wgt, gout, out, {0}, 0, 0, 0, 0, 0,
+                      nl, nv, nh2, w, amp, y, wgt, gout, out, 0, 0, 0, 0, 0,
                       env, nodes, 3 + 6 * (nodes + 2) + (LANES == 16 ? 14 : 2), t0, dt};
     const REAL *src[7];    /* channel ch of particle i: src[ch][i * stride[ch] + t] */
     int64_t stride[7];
@@ -466,7 +465,7 @@ int bb_shade_texels(int64_t mode, int64_t n, int64_t V, int64_t L, int64_t P, in
         src[ch] = mi == 0 ? kd + c3 * Tm : mi == 1 ? r : ks + c3 * Tm;
         dst[ch] = (flags & (8 << mi)) ? 0 : mi == 0 ? gkd + c3 * Tm : mi == 1 ? gr : gks + c3 * Tm;  /* unwanted: null */
         stride[ch] = mi == 1 ? Tm : 3 * Tm;
-        q.slot[ch] = cons ? -1 : (int)q.nch++;
+        q.nch += !cons;
     }
     const int64_t nch = q.nch, row = nch * np, rows = uoff[nchunk];
     q.row = row;
@@ -483,14 +482,14 @@ int bb_shade_texels(int64_t mode, int64_t n, int64_t V, int64_t L, int64_t P, in
     q.M = M; q.C = C; q.G = Gb; q.GC = GC; q.ES = ES;
     /* lanes past n hold a harmless material (0.5 everywhere) and are never read out */
     for (int ch = 0; ch < 7; ch++)
-        for (int64_t i = 0; i < np; i++) C[ch * np + i] = q.slot[ch] < 0 && i < n ? src[ch][i * stride[ch]] : (REAL)0.5;
+        for (int64_t i = 0; i < np; i++) C[ch * np + i] = slot_of(ch, flags) < 0 && i < n ? src[ch][i * stride[ch]] : (REAL)0.5;
 #pragma omp parallel num_threads(nthreads)
     {
 #pragma omp for schedule(static)
         for (int64_t t0 = 0; t0 < T; t0 += TILE) {   /* the maps, texel-major: 8 x 8 blocks transposed */
             const int64_t t1 = t0 + TILE < T ? t0 + TILE : T;
             for (int ch = 0; ch < 7; ch++)
-                if (q.slot[ch] >= 0) to_texel_major(M + q.slot[ch] * np, row, src[ch], stride[ch], n, np, rptr, t0, t1);
+                if (slot_of(ch, flags) >= 0) to_texel_major(M + slot_of(ch, flags) * np, row, src[ch], stride[ch], n, np, rptr, t0, t1);
         }
 #pragma omp for schedule(dynamic, 1)
         for (int64_t c = 0; c < nchunk; c++) chunk(&q, c);
@@ -515,8 +514,8 @@ int bb_shade_texels(int64_t mode, int64_t n, int64_t V, int64_t L, int64_t P, in
                     rp[t - t0] = bt;
                 }
                 for (int ch = 0; ch < 7; ch++)
-                    if (q.slot[ch] >= 0 && !(flags & (8 << map_of(ch))))
-                        from_texel_major(dst[ch], stride[ch], rp, q.slot[ch] * np, n, t0, t1);
+                    if (slot_of(ch, flags) >= 0 && !(flags & (8 << map_of(ch))))
+                        from_texel_major(dst[ch], stride[ch], rp, slot_of(ch, flags) * np, n, t0, t1);
             }
         }
     }
@@ -525,7 +524,7 @@ int bb_shade_texels(int64_t mode, int64_t n, int64_t V, int64_t L, int64_t P, in
             for (int64_t c = 0; c < nchunk; c++) epart[i * nchunk + c] = ES[c * np + i];
         if (!q.grad) continue;
         for (int ch = 0; ch < 7; ch++) {   /* constant maps: the chunks' sums, in chunk order */
-            if (q.slot[ch] >= 0 || (flags & (8 << map_of(ch)))) continue;
+            if (slot_of(ch, flags) >= 0 || (flags & (8 << map_of(ch)))) continue;
             REAL s = 0;
             for (int64_t c = 0; c < nchunk; c++) s += GC[(c * 7 + ch) * np + i];
             dst[ch][i * stride[ch]] = s;
