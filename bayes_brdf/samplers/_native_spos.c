@@ -21,6 +21,8 @@
 #define NMAX 64  /* particles per group (the caller checks) */
 #define IT 4     /* particles i per pass of the kernel sums */
 
+static const REAL zrow[NMAX] = {0};   /* a kernel row of zeros: the padding of the last pass */
+
 void bb_spos_update(int64_t G, int64_t n, int64_t D, int64_t nt, const REAL *restrict z, const REAL *restrict g,
                     const REAL *restrict xi, const REAL *restrict K, const REAL *restrict ks,
                     const REAL *restrict c2h, const REAL *restrict v, const REAL *restrict vn, REAL *restrict zo,
@@ -52,26 +54,19 @@ void bb_spos_update(int64_t G, int64_t n, int64_t D, int64_t nt, const REAL *res
                 for (int64_t t = 0; t < IT; t++)
 #pragma omp simd
                     for (int64_t b = 0; b < B; b++) { kz[t][b] = 0; kg[t][b] = 0; }
-                if (ni == IT) {
-                    for (int64_t j = 0; j < n; j++) {
-                        const REAL k0 = Kq[i0 * n + j], k1 = Kq[(i0 + 1) * n + j], k2 = Kq[(i0 + 2) * n + j],
-                                   k3 = Kq[(i0 + 3) * n + j];
+                /* rows past the last particle read zeros (their sums are not used) */
+                const REAL *K0 = Kq + i0 * n, *K1 = ni > 1 ? K0 + n : zrow, *K2 = ni > 2 ? K0 + 2 * n : zrow,
+                           *K3 = ni > 3 ? K0 + 3 * n : zrow;
+                for (int64_t j = 0; j < n; j++) {
+                    const REAL k0 = K0[j], k1 = K1[j], k2 = K2[j], k3 = K3[j];
 #pragma omp simd
-                        for (int64_t b = 0; b < B; b++) {
-                            const REAL zj = zc[j][b], gj = gc[j][b];
-                            kz[0][b] += k0 * zj; kg[0][b] += k0 * gj;
-                            kz[1][b] += k1 * zj; kg[1][b] += k1 * gj;
-                            kz[2][b] += k2 * zj; kg[2][b] += k2 * gj;
-                            kz[3][b] += k3 * zj; kg[3][b] += k3 * gj;
-                        }
+                    for (int64_t b = 0; b < B; b++) {
+                        const REAL zj = zc[j][b], gj = gc[j][b];
+                        kz[0][b] += k0 * zj; kg[0][b] += k0 * gj;
+                        kz[1][b] += k1 * zj; kg[1][b] += k1 * gj;
+                        kz[2][b] += k2 * zj; kg[2][b] += k2 * gj;
+                        kz[3][b] += k3 * zj; kg[3][b] += k3 * gj;
                     }
-                } else {
-                    for (int64_t t = 0; t < ni; t++)
-                        for (int64_t j = 0; j < n; j++) {
-                            const REAL kij = Kq[(i0 + t) * n + j];
-#pragma omp simd
-                            for (int64_t b = 0; b < B; b++) { kz[t][b] += kij * zc[j][b]; kg[t][b] += kij * gc[j][b]; }
-                        }
                 }
                 for (int64_t t = 0; t < ni; t++) {
                     const int64_t i = i0 + t;
