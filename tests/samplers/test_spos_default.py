@@ -48,7 +48,7 @@ def test_tighter_2d_posteriors_near_the_floor(setup, bar):
 def test_narrow_ridges_within_twice_the_floor(setup):
     """The issue's narrow setups: with one Adam scale per group they were 133x and 383x the floor (a particle
     on a flat stretch of the ridge moved at the pace the group's stiffest particles set); with one per particle
-    (``precond_scope = "auto"`` in 2-D) within 2x on both columns, and a single default run passes its checks."""
+    (``precond_scope = "particle"``, the preset) within 2x on both columns, and a single default run passes its checks."""
     t = compare(setup, samplers=("spos",), runs=20, particles=16, steps=None)
     for col in ("mse_mean", "mse_var"):
         assert t["spos"][col] <= 2 * t["iid"][col], (col, t["spos"][col], t["iid"][col])
@@ -62,7 +62,8 @@ def test_default_is_spread_scaled_with_a_clamped_start():
     assert s.step_units == "spread" and cfg.init_margin == 0.05
     assert cfg.steps == 2000
     assert s.adam_eps == "auto" and s.eps_for(2) == 1.0 and s.eps_for(2048) == 2 / 2048
-    assert s.precond_scope == "auto" and s.per_particle(2) and s.per_particle(16) and not s.per_particle(17)
+    # one Adam scale per particle in every dimension: a shared one lets narrow texels contract 4x more slowly
+    assert s.precond_scope == "particle" and s.per_particle(2) and s.per_particle(16) and s.per_particle(65536)
     with pytest.raises(bb.errors.InputError, match="adam_eps"):
         make_sampler("spos", params={"adam_eps": "big"})
 
