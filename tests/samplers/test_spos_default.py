@@ -64,6 +64,9 @@ def test_default_is_spread_scaled_with_a_clamped_start():
     assert s.adam_eps == "auto" and s.eps_for(2) == 1.0 and s.eps_for(2048) == 2 / 2048
     # one Adam scale per particle in every dimension: a shared one lets narrow texels contract 4x more slowly
     assert s.precond_scope == "particle" and s.per_particle(2) and s.per_particle(16) and s.per_particle(65536)
+    # "auto" (the preset before) stays as it was: per particle in at most 16 dimensions, per group beyond
+    a, _ = make_sampler("spos", params={"precond_scope": "auto"})
+    assert a.per_particle(2) and a.per_particle(16) and not a.per_particle(17)
     with pytest.raises(bb.errors.InputError, match="adam_eps"):
         make_sampler("spos", params={"adam_eps": "big"})
 
