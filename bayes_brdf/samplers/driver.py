@@ -207,13 +207,13 @@ def _run(sampler, potential, *, particles: int = 20, steps: int = 1000, seed: in
         off, of = span if span is not None else (0, horizon)
         log.info("resuming from step %d of %d (checkpoint %s)", off + start, of, ck_path)
 
-    def save(t, rngs=None):
+    def save(t, rngs=None, seconds=None):
         if ck_path is not None:
             r, gr = rngs or (rng.get_state(), torch.get_rng_state())
             ck_path.parent.mkdir(parents=True, exist_ok=True)
             _save(ck_path, {"format": FORMAT, "signature": signature, "t": t, "state": _plain(state),
                             "rng": r, "global_rng": gr, "trace": trace, "record": rec.state(), "horizon": horizon,
-                            "seconds": elapsed(),
+                            "seconds": elapsed() if seconds is None else seconds,
                             "evaluations": evals0 + committed_evals})
 
     t0, e0 = time.perf_counter(), _evals(potential)
@@ -269,9 +269,10 @@ def _run(sampler, potential, *, particles: int = 20, steps: int = 1000, seed: in
         off, of = span if span is not None else (0, horizon)
         raise Interrupted(off + done, of if span is not None else horizon, ck_path) from None
     bar.close()
-    save(done)
+    seconds = elapsed()     # one reading: the checkpoint and the result report the same time (not the save's)
+    save(done, seconds=seconds)
     evals = evals0 + committed_evals
-    return RunResult(zf, state, trace[:done], done, elapsed(), evals, resumed_from=start,
+    return RunResult(zf, state, trace[:done], done, seconds, evals, resumed_from=start,
                      diagnostics=diag, energies=rec.energies[:done])
 
 
