@@ -61,6 +61,11 @@ docs/calibration.md, "Narrow texels"). A positive per-particle scale leaves the 
 it is, and the Langevin part keeps its drift and noise consistent particle by particle; against the exact
 per-texel posterior (bayes_brdf.experiments.highdim) it is as calibrated as the shared one, with fewer texels
 off by 2x.
+
+``texel_moves`` (every so many steps; 0: never) adds a texel-local Metropolis sweep after the update, for
+models that offer texel energies (:mod:`bayes_brdf.samplers.texel_moves`): particles stranded in a texel's
+weak second mode, which gradients and Langevin noise leave there for thousands of steps, jump to where the
+texel's posterior is. It draws from the same generator as the update, so a checkpointed run resumes exactly.
 """
 from __future__ import annotations
 
@@ -80,6 +85,7 @@ from .diagnostics import LOW_DIM
 from .config import Configurable
 from .kernels import kernel_apply, rbf_matrix, rbf_median
 from .numerics import Preconditioner, anneal, precond_init, precond_update, standard_normal
+from .texel_moves import texel_move
 
 
 class SPOSState(NamedTuple):
@@ -107,6 +113,9 @@ class SPOS(Configurable, Sampler):
     precond_scope: str = "group"     # Adam's second moment: shared by a group's particles ("group"), one per
     #                                  "particle" (pSGLD's per-chain RMSprop), or "auto": per particle in at most
     #                                  LOW_DIM dimensions (see the module docstring)
+    texel_moves: int = 0             # every so many steps a texel-local Metropolis sweep (texel_moves.py), for
+    #                                  models that offer texel energies; 0: never
+    texel_bandwidth: float = 0.5     # its proposal's jitter, in units of the other half's robust spread
 
     name = "spos"
     State = SPOSState
@@ -117,7 +126,9 @@ class SPOS(Configurable, Sampler):
         self._choice("step_units", ("parameter", "spread"))
         self._choice("precond_scope", ("group", "particle", "auto"))
 
-        self._positive("min_spread")
+        self._positive("min_spread", "texel_bandwidth")
+        if isinstance(self.texel_moves, bool) or not isinstance(self.texel_moves, int) or self.texel_moves < 0:
+            raise _bad("texel_moves", self.texel_moves, "a step count >= 0 (0: no texel moves)")
         for k in ("beta", "adam_eps"):   # the dimension-aware ones: a number, or "auto" (beta_for, eps_for)
             v = getattr(self, k)
             if not (v == "auto" or (isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
@@ -146,6 +157,13 @@ class SPOS(Configurable, Sampler):
         return SPOSState(z0.clone(), p0, p0, steps, groups)
 
     def step(self, state, t, potential, rng):
+        state, info = self._spos_step(state, t, potential, rng)
+        if self.texel_moves and (t + 1) % self.texel_moves == 0:
+            z, rate = texel_move(state.z, potential, rng, state.groups, self.texel_bandwidth)
+            state, info = state._replace(z=z), Info(info.energy, {**info.extras, "texel_accept": rate})
+        return state, info
+
+    def _spos_step(self, state, t, potential, rng):
         z, groups = state.z, state.groups
         n, D = z.shape[0] // groups, z.shape[1]
         u, grad = potential.value_and_grad(z)

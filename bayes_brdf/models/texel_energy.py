@@ -1,0 +1,130 @@
+"""Each texel's share of a per-texel model's energy: what a texel-local Metropolis move needs.
+
+On rectified photos (every pixel *is* a texel, ``GBuffer.aligned``) a :class:`~bayes_brdf.models.material.PerTexel`
+model without a smoothness prior makes the texels conditionally independent given the noise scale: its negative
+log-density is a sum over texels of the texel's prior and the likelihood of the pixels that show it (in every
+view, with the saturated ones' censored term). :func:`texel_energies` returns those terms per particle and texel,
+at a given noise scale per particle; :func:`offers_texel_energy` says whether a model and data have that form.
+
+This is the one small protocol :mod:`bayes_brdf.samplers.texel_moves` reads: a model that offers it gets
+texel-local jumps between the modes of a texel's posterior (docs/calibration.md, "Stranded particles").
+"""
+from __future__ import annotations
+
+import torch
+from torch import Tensor
+
+from ..render.shade import shade
+from .data import ModelData
+from .likelihood import SIGMA_FLOOR, censored_log_survival
+from . import priors as P
+
+
+def offers_texel_energy(model, data) -> bool:
+    """Whether ``model`` on ``data`` is a sum of independent per-texel terms (given the noise scale)."""
+    from .material import PerTexel
+    if type(model) is not PerTexel or not isinstance(data, ModelData):
+        return False
+    g = data.gbuffer
+    R = model.resolution
+    return (model.smoothness is None and bool(getattr(g, "aligned", False)) and g.texel is None
+            and tuple(g.resolution) == (R, R) and isinstance(model.normals, str))
+
+
+def texel_scale(model, data: ModelData, values: dict) -> tuple[Tensor, Tensor]:
+    """``(sigma [n], kappa [n])``: the noise scale at which :func:`texel_energies` splits the likelihood, and
+    the weight of a texel's residual sum in the particle's energy there.
+
+    With a fixed ``sigma``, ``kappa`` is ``1 / sigma`` (Laplace) or ``1 / (2 sigma^2)`` (Gaussian). Under
+    ``sigma = "auto"`` the energy is the profile over the noise level, ``N log e - log P_censored(s(e))`` with
+    ``s = e / N`` (Laplace); one texel changes ``e`` by about ``1 / N`` of itself, so its share is the energy's
+    derivative in ``e`` times its residual: ``kappa = 1 / s - (d log P_censored / d s) (d s / d e)``. The
+    second term is not small on real photos: the saturated pixels' bound favours a larger noise level, and on
+    card_blue ``kappa`` is 0.8 to 0.9 of ``1 / s``.
+    """
+    return _scale(model, data, _pixel_residuals(model, data, values), _censored_renders(model, data, values))
+
+
+def _scale(model, data: ModelData, resid: Tensor, r: Tensor | None) -> tuple[Tensor, Tensor]:
+    n = resid.shape[0]
+    lap = model.likelihood == "laplace"
+    if model.sigma != "auto":
+        s = torch.full((n,), float(model.sigma), dtype=torch.float64, device=resid.device)
+        return s, (1 / s if lap else 1 / (2 * s * s))
+    e = resid.reshape(n, -1).sum(1).double()
+    N = 3 * data.weight.sum().double()
+    if lap:
+        s = (e / N).clamp_min(SIGMA_FLOOR)
+        kappa, ds_de = 1 / s, (e / N >= SIGMA_FLOOR).double() / N
+    else:
+        s = (e / N).clamp_min(SIGMA_FLOOR ** 2).sqrt()
+        kappa, ds_de = 1 / (2 * s * s), (e / N >= SIGMA_FLOOR ** 2).double() / (2 * s * N)
+    if r is not None:
+        d = 1e-4
+        dc = (_censored_terms(model, data, r, s * (1 + d)).sum(1) - _censored_terms(model, data, r, s * (1 - d)).sum(1))
+        kappa = kappa - dc / (2 * d * s) * ds_de
+    return s, kappa
+
+
+def _censored_renders(model, data: ModelData, values: dict) -> Tensor | None:
+    c = data.censored
+    if c is None or model.saturated != "censored":
+        return None
+    with torch.no_grad():
+        return shade(model.maps(values), c.gbuffer, backend=model.backend)[:, 0, 0].double()       # [n, K, 3]
+
+
+def _censored_terms(model, data: ModelData, r: Tensor, sigma: Tensor) -> Tensor:
+    """``[n, K]``: each saturated pixel's ``w log P(R + noise >= level)`` at noise scale ``sigma [n]``."""
+    c = data.censored
+    n = r.shape[0]
+    sc = sigma.reshape(n, 1, 1).to(r) * (1 if c.noise is None else c.noise.to(r)[None, :, None])
+    t = (c.level.to(r)[None] - r) / sc
+    return censored_log_survival(t, model.likelihood).sum(-1) * c.weight.to(r)[None]
+
+
+def _pixel_residuals(model, data: ModelData, values: dict) -> Tensor:
+    """``w |y - R|`` (Laplace) or ``w (y - R)^2`` (Gaussian) summed over views and channels: ``[n, H, W]``."""
+    with torch.no_grad():
+        img = shade(model.maps(values), data.gbuffer, backend=model.backend)          # [n, V, H, W, 3]
+        r = img.sub_(data.images[None])
+        r = r.abs_() if model.likelihood == "laplace" else r.square_()
+        return torch.einsum("nvhwc,vhw->nhw", r, data.noise_weight(model.likelihood))
+
+
+def texel_energies(model, data: ModelData, values: dict, sigma: Tensor | None = None,
+                   kappa: Tensor | None = None) -> tuple[Tensor, tuple[Tensor, Tensor]]:
+    """``([n, R * R] float64, (sigma, kappa))``: each texel's negative log prior plus its pixels' share of the
+    negative log-likelihood: ``kappa`` times their residual sum, less their censored terms at noise scale
+    ``sigma`` (both ``[n]``; by default :func:`texel_scale` of ``values``, from the same renders), up to one
+    constant per texel.
+
+    A texel-local move compares two states of one texel, so only differences matter; they agree with the
+    full potential's to first order in ``1 / N`` (exactly with a fixed ``sigma``; tests/samplers/test_texel_moves.py).
+    """
+    R = model.resolution
+    resid = _pixel_residuals(model, data, values)
+    r = _censored_renders(model, data, values)
+    if sigma is None:
+        sigma, kappa = _scale(model, data, resid, r)
+    n = sigma.shape[0]
+    out = resid.reshape(n, R * R).double().mul_(kappa.reshape(n, 1).double())
+    if r is not None:
+        idx = data.censored.gbuffer.texel.reshape(-1).to(out.device)
+        out = out.index_add(1, idx, _censored_terms(model, data, r, sigma).neg())
+    out = out.mul_(data.scale)
+    for name, x in values.items():
+        out = out.sub_(_prior_log_density(model, name, x).double().reshape(n, -1, R * R).sum(1))
+    return out, (sigma, kappa)
+
+
+def _prior_log_density(model, name: str, x: Tensor) -> Tensor:
+    """Elementwise log prior density of site ``name`` (a uniform prior: 0, its constant left out)."""
+    if name == "normal_slope":
+        return torch.distributions.Normal(0.0, model.slope_std).log_prob(x)
+    p = model._prior(name)
+    if p.kind == "uniform":
+        return torch.zeros_like(x)
+    lo, hi = model._range(name)
+    d = p.distribution(tuple(x.shape[1:]), lo, hi, dtype=x.dtype, device=x.device).base_dist
+    return d.log_prob(x)

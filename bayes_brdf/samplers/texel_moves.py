@@ -1,0 +1,162 @@
+"""Texel-local Metropolis jumps: particles stranded in a texel's second mode brought back.
+
+On real photos a texel's posterior in roughness can have a second, far weaker mode: a blurred highlight
+(roughness near 1) that the albedo half explains, 6 to 22 nats above the main mode behind a ridge of 5 to 17
+nats (card_blue, measured: docs/calibration.md, "Stranded particles"). Particles that start there (the prior
+draws put most of them above the ridge) stay for thousands of steps: SPOS moves by gradients and a little
+noise. Without this move a fifth of a default run's particles sat in such modes on card_blue's narrowest
+quarter of texels, whose roughness std came out 8.5x each texel's exact posterior std (quadrature:
+:mod:`bayes_brdf.experiments.texel_truth`); with it, 1.8x (``benchmarks/bench_texel_truth.py``).
+
+The move, every ``texel_moves`` steps of :class:`~bayes_brdf.samplers.spos.SPOS`, for models that offer
+:func:`~bayes_brdf.models.texel_energy.texel_energies` (per-texel maps on rectified photos): the particles are
+split in two halves; each particle of one half proposes, for every texel at once and independently, a new value
+of the texel's coordinates drawn from a kernel density of the other half's values there (a random particle of
+the other half plus Gaussian jitter of ``bandwidth`` times their median nearest-neighbour distance, so that a
+particle in either mode of a bimodal texel sits inside the density; and a defensive :data:`DEFENSIVE` share
+from the standard logistic, so that one alone in a mode is not kept there by the density at its own place),
+and each texel's proposal is accepted with the Metropolis-Hastings probability of that texel's own energy (its prior, its pixels and the
+Jacobian of the bijection) and the two proposal densities. Then the halves swap roles. The proposal of a
+particle does not depend on its own state, only on the other half's, so each texel's step leaves the posterior
+of that texel invariant given the rest (an ensemble move, as emcee's split stretch move); the texels are
+independent given the noise scale, which is held at the particle's current level for the move (under
+``sigma = "auto"`` a texel's share is the profile energy's derivative in the residual sum times its residual,
+:func:`~bayes_brdf.models.texel_energy.texel_scale`: one texel shifts the level by about one part in the
+number of pixels).
+"""
+from __future__ import annotations
+
+import math
+
+import torch
+from torch import Tensor
+
+from ..models.texel_energy import offers_texel_energy, texel_energies
+
+
+def texel_layout(potential) -> Tensor | None:
+    """``[T, k]``: the coordinates of ``z`` that hold each texel's values, or ``None`` when the potential's model
+    does not offer texel energies (:func:`~bayes_brdf.models.texel_energy.offers_texel_energy`)."""
+    cached = getattr(potential, "_texel_layout", False)
+    if cached is not False:
+        return cached
+    model, args = getattr(potential, "model", None), getattr(potential, "args", ())
+    layout = None
+    if args and offers_texel_energy(model, args[0]):
+        R = model.resolution
+        cols = []
+        for s in potential.sites:
+            if tuple(s.ushape[-2:]) != (R, R) or tuple(s.ushape) != tuple(s.shape):
+                return _keep(potential, None)
+            c = s.size // (R * R)
+            cols.append(s.offset + torch.arange(s.size).reshape(c, R * R).T)        # [T, c]
+        layout = torch.cat(cols, 1)
+    return _keep(potential, layout)
+
+
+def _keep(potential, layout):
+    try:
+        potential._texel_layout = layout
+    except AttributeError:
+        pass
+    return layout
+
+
+def texel_energy(potential, z: Tensor, scale: tuple[Tensor, Tensor] | None = None) -> tuple[Tensor, tuple]:
+    """``([n, T] float64, scale)``: each texel's energy in unconstrained space (its constrained energy less the
+    log-Jacobian of its coordinates) at ``scale = (sigma, kappa)`` (:func:`~bayes_brdf.models.texel_energy.texel_scale`;
+    default: the particles' own)."""
+    model, data = potential.model, potential.args[0]
+    e, scale = texel_energies(model, data, potential.to_constrained(z), *(scale or ()))
+    R = model.resolution
+    for s, x in zip(potential.sites, torch.split(z, [s.size for s in potential.sites], dim=1)):
+        lo, hi = getattr(s.transform, "lo", None), getattr(s.transform, "hi", None)
+        if lo is None:
+            continue                                    # unconstrained: no Jacobian
+        a = x.abs()
+        ladj = (-a - 2 * torch.log1p(torch.exp(-a))).reshape(z.shape[0], -1, R * R).sum(1)
+        e = e - ladj.to(e.dtype)
+    return e, scale
+
+
+def texel_move(z: Tensor, potential, rng: torch.Generator, groups: int = 1, bandwidth: float = 2.5,
+               layout: Tensor | None = None) -> tuple[Tensor, float]:
+    """One texel-local Metropolis sweep over both halves of each group (see the module docstring).
+
+    Returns the new particles ``[G n, D]`` and the share of texel proposals accepted.
+    """
+    layout = texel_layout(potential) if layout is None else layout
+    N, D = z.shape
+    n = N // groups
+    if layout is None or n < 4:
+        return z, 0.0
+    z = z.clone()
+    e, (sigma, kappa) = texel_energy(potential, z)
+    T, k = layout.shape
+    rows = torch.arange(N).reshape(groups, n)
+    half = n // 2
+    accepted, proposed = 0, 0
+    for a_sl, b_sl in ((slice(0, half), slice(half, n)), (slice(half, n), slice(0, half))):
+        A, B = rows[:, a_sl].reshape(-1), rows[:, b_sl]              # movers [G a]; others [G, b]
+        na, nb = A.numel() // groups, B.shape[1]
+        xb = z[B.reshape(-1)][:, layout].reshape(groups, nb, T, k)    # the other half's texel values
+        h = _local_scale(xb).mul_(bandwidth).clamp_min_(1e-3)                          # [G, T, k]
+        pick = torch.randint(nb, (groups, na, T), generator=rng).to(z.device)
+        centre = torch.gather(xb, 1, pick[..., None].expand(-1, -1, -1, k))                  # [G, a, T, k]
+        jitter = torch.randn(centre.shape, generator=rng, dtype=z.dtype).to(z.device)
+        prop = centre + jitter * h[:, None]
+        wide = torch.rand((groups, na, T), generator=rng).to(z.device) < DEFENSIVE
+        v = torch.rand(centre.shape, generator=rng, dtype=torch.float64).clamp_(1e-12, 1 - 1e-12)
+        prop = torch.where(wide[..., None], torch.logit(v).to(z.dtype).to(z.device), prop)
+        cur = z[A][:, layout].reshape(groups, na, T, k)
+        lq_cur, lq_prop = _log_q(cur, xb, h), _log_q(prop, xb, h)
+        zp = z[A].clone()
+        zp[:, layout] = prop.reshape(-1, T, k)
+        ep, _ = texel_energy(potential, zp, (sigma[A], kappa[A]))
+        log_alpha = (e[A] - ep).reshape(groups, na, T) + (lq_cur - lq_prop).double()
+        u = torch.rand(log_alpha.shape, generator=rng, dtype=torch.float64).to(z.device)
+        ok = (u.log() < log_alpha) & torch.isfinite(ep.reshape(groups, na, T))
+        okf = ok.reshape(-1, T)
+        new = torch.where(okf[..., None], prop.reshape(-1, T, k), cur.reshape(-1, T, k))
+        za = z[A]
+        za[:, layout] = new
+        z[A] = za
+        e[A] = torch.where(okf, ep, e[A])
+        accepted += int(ok.sum())
+        proposed += ok.numel()
+    return z, accepted / max(1, proposed)
+
+
+def _local_scale(xb: Tensor) -> Tensor:
+    """``[G, T, k]``: per texel and coordinate, the median over the particles ``xb [G, b, T, k]`` of the distance
+    to their nearest neighbour (in the texel's coordinates): the width of one mode, not the distance between
+    two, so a particle in either mode of a bimodal texel sits inside the kernel density."""
+    x = xb.permute(0, 2, 1, 3)                                                      # [G, T, b, k]
+    d = torch.cdist(x, x)                                                           # [G, T, b, b]
+    d.diagonal(dim1=-2, dim2=-1).fill_(float("inf"))
+    nn = d.argmin(-1)                                                               # [G, T, b]
+    near = torch.gather(x, 2, nn[..., None].expand(-1, -1, -1, x.shape[-1]))
+    return (x - near).abs().median(2).values
+
+
+DEFENSIVE = 0.1     # share of proposals drawn from the standard logistic (a uniform prior's image in u-space)
+
+
+def _log_q(x: Tensor, centres: Tensor, h: Tensor) -> Tensor:
+    """The proposal's log density: the kernel density, and a defensive share of the standard logistic in every
+    coordinate. Without it a particle alone in a weak mode has no partner near it, the proposal's density at
+    its own place is tiny, and the move that would take it out is refused for that reason alone."""
+    wide = (-x.abs() - 2 * torch.log1p(torch.exp(-x.abs()))).sum(-1)              # log logistic density
+    return torch.logaddexp(math.log1p(-DEFENSIVE) + _log_kde(x, centres, h), math.log(DEFENSIVE) + wide)
+
+
+def _log_kde(x: Tensor, centres: Tensor, h: Tensor) -> Tensor:
+    """``[G, a, T]``: log density at ``x [G, a, T, k]`` of the equal mixture of ``N(centre_j, diag h^2)`` over
+    ``centres [G, b, T, k]`` (``h [G, T, k]``)."""
+    xs = (x / h[:, None]).permute(0, 2, 1, 3)                                       # [G, T, a, k]
+    cs = (centres / h[:, None]).permute(0, 2, 1, 3)                                 # [G, T, b, k]
+    lp = torch.cdist(xs, cs).square_().mul_(-0.5)                                   # [G, T, a, b]
+    norm = h.log().sum(-1) + 0.5 * h.shape[-1] * math.log(2 * math.pi)              # [G, T]
+    m = lp.amax(-1, keepdim=True)
+    lse = lp.sub_(m).clamp_min_(-80).exp_().sum(-1).log_().add_(m[..., 0])     # logsumexp over b (no denormals)
+    return (lse - (math.log(centres.shape[1]) + norm)[..., None]).transpose(1, 2)

@@ -1,0 +1,106 @@
+"""Texel-local Metropolis moves: each texel's energy checked against the potential and an independent
+implementation, the move alone against each texel's exact posterior (quadrature), and the default sampler on
+real photos against the quadrature of :mod:`bayes_brdf.experiments.texel_truth`."""
+from __future__ import annotations
+
+import pytest
+import torch
+
+import bayes_brdf as bb
+from bayes_brdf.errors import InputError
+from bayes_brdf.experiments import highdim as H
+from bayes_brdf.inference import resolve_model
+from bayes_brdf.io import load_capture
+from bayes_brdf.models import homogeneous
+from bayes_brdf.models.data import ModelData
+from bayes_brdf.potential import Potential
+from bayes_brdf.runs.fingerprint import model_table
+from bayes_brdf.samplers.spos import SPOS
+from bayes_brdf.samplers.texel_moves import texel_energy, texel_layout, texel_move
+
+
+
+@pytest.fixture(scope="module")
+def small():
+    prob = H.setup(H.HighDimSetup(noise=True, seed=0, resolution=8))
+    return prob, Potential(prob.model, (prob.data64,))
+
+
+def test_texel_energies_split_the_potential_exactly_with_a_fixed_sigma(small):
+    prob, pot = small
+    z, z2 = pot.init(6, seed=0), pot.init(6, seed=1)
+    L = texel_layout(pot)
+    assert L.shape == (64, 2)                                # gray albedo and roughness per texel
+    e, _ = texel_energy(pot, z)
+    e2, _ = texel_energy(pot, z2)
+    dU = pot.energy(z2) - pot.energy(z)
+    assert torch.allclose((e2 - e).sum(1), dU, rtol=1e-9, atol=1e-7)           # every texel changed at once
+    for t in (0, 27, 63):                                                       # one texel changed
+        zt = z.clone()
+        zt[:, L[t]] = z2[:, L[t]]
+        et, _ = texel_energy(pot, zt)
+        assert torch.allclose(et[:, t] - e[:, t], pot.energy(zt) - pot.energy(z), rtol=1e-9, atol=1e-7)
+        assert torch.allclose(torch.cat([et[:, :t], et[:, t + 1:]], 1), torch.cat([e[:, :t], e[:, t + 1:]], 1))
+    # the likelihood part against the experiment's own implementation (no Jacobian there: compare in x)
+    x, x2 = pot.to_constrained(z), pot.to_constrained(z2)
+    ref = H.texel_energies(prob, x["albedo"].reshape(6, -1), x["roughness"].reshape(6, -1))
+    ref2 = H.texel_energies(prob, x2["albedo"].reshape(6, -1), x2["roughness"].reshape(6, -1))
+    from bayes_brdf.models.texel_energy import texel_energies
+    mine = texel_energies(prob.model, prob.data64, x)[0]
+    mine2 = texel_energies(prob.model, prob.data64, x2)[0]
+    assert torch.allclose(mine2 - mine, ref2 - ref, rtol=1e-9, atol=1e-8)
+
+
+def test_texel_energy_follows_the_profiled_noise_level_on_real_photos(shared_data):
+    cap = load_capture(shared_data / "captures" / "card_blue", resolution=16)
+    data = ModelData.from_observations(cap)
+    assert data.censored is not None                          # the case where kappa is not 1 / sigma
+    model = resolve_model(model_table("per_texel", {}, 16))
+    pot = Potential(model, (data,))
+    z = pot.init(4, seed=0)
+    L = texel_layout(pot)
+    e, scale = texel_energy(pot, z)
+    sigma, kappa = scale
+    assert bool(((kappa * sigma - 1).abs() > 0.01).all())    # the saturated pixels pull on the noise level
+    for t in (3, 100, 200):
+        for c in range(L.shape[1]):
+            zt = z.clone()
+            zt[:, L[t, c]] += torch.tensor([0.4, -0.8, 1.5, -2.0])
+            et, _ = texel_energy(pot, zt, scale)
+            dU = (pot.energy(zt) - pot.energy(z)).double()
+            assert torch.allclose(et[:, t] - e[:, t], dU, rtol=0.01, atol=0.02), (t, c)
+
+
+def test_texel_moves_alone_sample_each_texels_exact_posterior_from_a_stranded_start(small):
+    prob, pot = small
+    ex = H.exact_std(prob, check=False, cells=1000)
+    z = pot.init(40, seed=0)
+    L = texel_layout(pot)
+    z[:, L[:, 1]] = 3.0 + 0.3 * torch.randn(40, 64, dtype=z.dtype)   # every particle's roughness near 1
+    g = torch.Generator().manual_seed(0)
+    rates = []
+    for _ in range(300):
+        z, rate = texel_move(z, pot, g, bandwidth=2.5)
+        rates.append(rate)
+    x = pot.to_constrained(z)
+    for m in ("albedo", "roughness"):
+        v = x[m].reshape(40, -1)
+        err = ((v.mean(0) - ex[f"mean_{m}"].flatten()).abs() / ex[f"std_{m}"].flatten()).median()
+        ratio = (v.std(0) / ex[f"std_{m}"].flatten()).median()
+        assert err < 0.35 and 0.85 < ratio < 1.15, (m, float(err), float(ratio))
+    assert 0.05 < sum(rates[-100:]) / 100 < 0.9
+
+
+def test_models_without_texel_energies_are_left_alone():
+    data = H.setup(H.HighDimSetup(resolution=4)).data
+    pot = Potential(homogeneous(albedo="gray"), (data,))
+    z = pot.init(8)
+    assert texel_layout(pot) is None
+    z2, rate = texel_move(z, pot, torch.Generator().manual_seed(0))
+    assert torch.equal(z2, z) and rate == 0.0
+
+
+@pytest.mark.parametrize("bad", [-1, 2.5, True])
+def test_texel_moves_must_be_a_step_count(bad):
+    with pytest.raises(InputError, match="texel_moves"):
+        SPOS(texel_moves=bad).validate()
