@@ -114,17 +114,19 @@ def texel_energies(model, data: ModelData, values: dict, sigma: Tensor | None = 
         out = out.index_add(1, idx, _censored_terms(model, data, r, sigma).neg())
     out = out.mul_(data.scale)
     for name, x in values.items():
-        out = out.sub_(_prior_log_density(model, name, x).double().reshape(n, -1, R * R).sum(1))
+        lp = _prior_log_density(model, name, x)
+        if lp is not None:
+            out = out.sub_(lp.double().reshape(n, -1, R * R).sum(1))
     return out, (sigma, kappa)
 
 
-def _prior_log_density(model, name: str, x: Tensor) -> Tensor:
-    """Elementwise log prior density of site ``name`` (a uniform prior: 0, its constant left out)."""
+def _prior_log_density(model, name: str, x: Tensor) -> Tensor | None:
+    """Elementwise log prior density of site ``name`` (``None`` for a uniform prior: a constant per texel)."""
     if name == "normal_slope":
         return torch.distributions.Normal(0.0, model.slope_std).log_prob(x)
     p = model._prior(name)
     if p.kind == "uniform":
-        return torch.zeros_like(x)
+        return None
     lo, hi = model._range(name)
     d = p.distribution(tuple(x.shape[1:]), lo, hi, dtype=x.dtype, device=x.device).base_dist
     return d.log_prob(x)

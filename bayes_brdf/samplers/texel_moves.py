@@ -109,7 +109,7 @@ def texel_move(z: Tensor, potential, rng: torch.Generator, groups: int = 1, band
         v = torch.rand(centre.shape, generator=rng, dtype=torch.float64).clamp_(1e-12, 1 - 1e-12)
         prop = torch.where(wide[..., None], torch.logit(v).to(z.dtype).to(z.device), prop)
         cur = z[A][:, layout].reshape(groups, na, T, k)
-        lq_cur, lq_prop = _log_q(cur, xb, h), _log_q(prop, xb, h)
+        lq_cur, lq_prop = _log_q(torch.cat([cur, prop], 1), xb, h).split(na, 1)        # one pass for both
         zp = z[A].clone()
         zp[:, layout] = prop.reshape(-1, T, k)
         ep, _ = texel_energy(potential, zp, (sigma[A], kappa[A]))
