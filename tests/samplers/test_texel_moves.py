@@ -125,3 +125,22 @@ def test_default_fit_on_real_photos_finds_each_texels_exact_roughness(shared_dat
     assert float(std["no moves"][narrow].mean()) > 4.0 * exact                                       # 6x
     mean = runs["default"].mean("roughness").flatten().double()
     assert float((mean - truth["mean"])[narrow].abs().mean()) < 0.02
+
+
+def test_a_run_with_texel_moves_resumes_exactly_after_ctrl_c(small, tmp_path):
+    from bayes_brdf.samplers import make_sampler, run
+    _, pot = small
+    smp, _ = make_sampler("spos")
+    assert smp.texel_moves == 10
+    kw = dict(particles=8, steps=40, seed=2, progress=False, checkpoint_every=10)
+    full = run(smp, pot, checkpoint=tmp_path / "full.pt", **kw)
+
+    def stop(t, state, info):
+        if t == 24:                                   # after the sweeps of steps 10 and 20, before the next
+            raise KeyboardInterrupt
+    with pytest.raises(KeyboardInterrupt):
+        run(smp, pot, checkpoint=tmp_path / "cut.pt", callbacks=[stop], **kw)
+    again = run(smp, pot, checkpoint=tmp_path / "cut.pt", **kw)
+    assert again.resumed_from > 0 and torch.equal(again.z, full.z)
+    plain = run(make_sampler("spos", params={"texel_moves": 0})[0], pot, **kw)
+    assert not torch.equal(plain.z, full.z)           # the sweeps did something
