@@ -11,6 +11,8 @@ texel-local jumps between the modes of a texel's posterior (docs/calibration.md,
 """
 from __future__ import annotations
 
+import math
+
 import torch
 from torch import Tensor
 
@@ -60,9 +62,7 @@ def _scale(model, data: ModelData, resid: Tensor, r: Tensor | None) -> tuple[Ten
         s = (e / N).clamp_min(SIGMA_FLOOR ** 2).sqrt()
         kappa, ds_de = 1 / (2 * s * s), (e / N >= SIGMA_FLOOR ** 2).double() / (2 * s * N)
     if r is not None:
-        d = 1e-4
-        dc = (_censored_terms(model, data, r, s * (1 + d)).sum(1) - _censored_terms(model, data, r, s * (1 - d)).sum(1))
-        kappa = kappa - dc / (2 * d * s) * ds_de
+        kappa = kappa - _censored_terms(model, data, r, s, slope=True) * ds_de
     return s, kappa
 
 
@@ -74,13 +74,23 @@ def _censored_renders(model, data: ModelData, values: dict) -> Tensor | None:
         return shade(model.maps(values), c.gbuffer, backend=model.backend)[:, 0, 0].double()       # [n, K, 3]
 
 
-def _censored_terms(model, data: ModelData, r: Tensor, sigma: Tensor) -> Tensor:
-    """``[n, K]``: each saturated pixel's ``w log P(R + noise >= level)`` at noise scale ``sigma [n]``."""
+def _censored_terms(model, data: ModelData, r: Tensor, sigma: Tensor, slope: bool = False) -> Tensor:
+    """``[n, K]``: each saturated pixel's ``w log P(R + noise >= level)`` at noise scale ``sigma [n]``; with
+    ``slope``, their sum's derivative in ``sigma`` instead (``[n]``; ``t = (level - R) / (sigma g)``, so
+    ``d log S / d sigma = (d log S / d t) (-t / sigma)``)."""
     c = data.censored
     n = r.shape[0]
     sc = sigma.reshape(n, 1, 1).to(r) * (1 if c.noise is None else c.noise.to(r)[None, :, None])
     t = (c.level.to(r)[None] - r) / sc
-    return censored_log_survival(t, model.likelihood).sum(-1) * c.weight.to(r)[None]
+    val = censored_log_survival(t, model.likelihood)
+    w = c.weight.to(r)[None, :, None]
+    if not slope:
+        return (val * w).sum(-1)
+    if model.likelihood == "laplace":
+        dlog = torch.where(t >= 0, torch.full_like(t, -1.0), 1 - val.neg().exp())
+    else:
+        dlog = (-0.5 * t * t - 0.5 * math.log(2 * math.pi) - val).exp().neg()
+    return (dlog * (-t) * w).sum((1, 2)) / sigma.to(r)
 
 
 def _pixel_residuals(model, data: ModelData, values: dict) -> Tensor:
