@@ -68,9 +68,7 @@ def main(argv=None) -> int:
         post = infer(table, obs, "spos", steps=steps, params=params or None, progress=False)
         secs = time.perf_counter() - t
         pot = post.potential
-        site = next(s for s in pot.sites if s.name == "roughness")
-        lo, hi = pot.model.roughness_range
-        r = lo + (hi - lo) * torch.sigmoid(post.z[:, site.offset:site.offset + site.size].double())
+        r = post.particles["roughness"].reshape(post.num_particles, -1).double()
         if truth is None:
             _, (sig, kap) = texel_energy(pot, post.z)
             s, k = float(sig.median()), float(kap.median())

@@ -22,19 +22,16 @@ import torch
 from torch import Tensor
 
 from ..errors import InputError
-from ..models.likelihood import censored_log_survival
-from ..models.material import PerTexel
-from ..models.texel_energy import offers_texel_energy
-from ..render.shade import shade
+from ..models.texel_energy import offers_texel_energy, texel_channel_energies
 
 
 def roughness_marginals(model, data, sigma: float, kappa: float, *, albedo_cells: int = 128,
                         roughness_cells: int = 64, chunk: int = 64) -> dict:
     """``{"mean", "std": [T], "p": [roughness_cells, T], "grid": [roughness_cells]}``: each texel's roughness
-    posterior at noise scale ``sigma`` with residual weight ``kappa`` (:func:`~bayes_brdf.models.texel_energy.texel_scale`
-    of a posterior's particles, e.g. their medians)."""
-    if not offers_texel_energy(model, data) or not isinstance(model, PerTexel) or model.specular == "infer" \
-            or model.normals != "flat" or model.likelihood != "laplace":
+    posterior at noise scale ``sigma`` with residual weight ``kappa`` (``texel_energies``' scale of a
+    posterior's particles, e.g. their medians: :func:`bayes_brdf.samplers.texel_moves.texel_energy`)."""
+    if not offers_texel_energy(model, data) or model.specular == "infer" or model.normals != "flat" \
+            or model.likelihood != "laplace":
         raise InputError("the quadrature needs a per_texel model with fixed specular, flat normals and the "
                          "Laplace likelihood on rectified photos, without a smoothness prior")
     for site in ("albedo", "roughness"):
@@ -47,24 +44,13 @@ def roughness_marginals(model, data, sigma: float, kappa: float, *, albedo_cells
     A, Rr = (t.flatten() for t in torch.meshgrid(ag, rg, indexing="ij"))
     C = 3 if model.albedo == "rgb" else 1
     E = torch.empty(len(A), R * R, 3, dtype=torch.float64)
-    w = data.noise_weight("laplace")
-    c = data.censored if model.saturated == "censored" else None
     for i in range(0, len(A), chunk):
         a, r = A[i:i + chunk], Rr[i:i + chunk]
         m = len(a)
         vals = {"albedo": a.reshape(m, 1, 1, 1).expand(m, C, R, R).to(data.dtype),
                 "roughness": r.reshape(m, 1, 1, 1).expand(m, 1, R, R).to(data.dtype)}
-        maps = model.maps(vals)
-        with torch.no_grad():
-            img = shade(maps, data.gbuffer, backend=model.backend)
-            e = ((img - data.images[None]).abs() * w[None, ..., None]).sum(1).reshape(m, R * R, 3).double() * kappa
-            if c is not None:
-                rc = shade(maps, c.gbuffer, backend=model.backend)[:, 0, 0].double()
-                g = 1.0 if c.noise is None else c.noise.double()[None, :, None]
-                t = (c.level.double()[None] - rc) / (sigma * g)
-                lp = censored_log_survival(t, "laplace") * c.weight.double()[None, :, None]
-                e = e.index_add(1, c.gbuffer.texel.reshape(-1), -lp)
-        E[i:i + m] = e * data.scale
+        full = lambda v: torch.full((m,), float(v), dtype=torch.float64)     # noqa: E731
+        E[i:i + m] = texel_channel_energies(model, data, vals, full(sigma), full(kappa))
     E = E.reshape(albedo_cells, roughness_cells, R * R, 3)
     if C == 1:                                   # one gray albedo for the three channels: integrate it jointly
         lm = torch.logsumexp(-E.sum(-1), 0)

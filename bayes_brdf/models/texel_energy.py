@@ -19,7 +19,6 @@ from torch import Tensor
 from ..render.shade import shade
 from .data import ModelData
 from .likelihood import SIGMA_FLOOR, censored_log_survival
-from . import priors as P
 
 
 def offers_texel_energy(model, data) -> bool:
@@ -33,7 +32,7 @@ def offers_texel_energy(model, data) -> bool:
             and tuple(g.resolution) == (R, R) and isinstance(model.normals, str))
 
 
-def texel_scale(model, data: ModelData, values: dict) -> tuple[Tensor, Tensor]:
+def _scale(model, data: ModelData, resid: Tensor, r: Tensor | None) -> tuple[Tensor, Tensor]:
     """``(sigma [n], kappa [n])``: the noise scale at which :func:`texel_energies` splits the likelihood, and
     the weight of a texel's residual sum in the particle's energy there.
 
@@ -42,12 +41,8 @@ def texel_scale(model, data: ModelData, values: dict) -> tuple[Tensor, Tensor]:
     ``s = e / N`` (Laplace); one texel changes ``e`` by about ``1 / N`` of itself, so its share is the energy's
     derivative in ``e`` times its residual: ``kappa = 1 / s - (d log P_censored / d s) (d s / d e)``. The
     second term is not small on real photos: the saturated pixels' bound favours a larger noise level, and on
-    card_blue ``kappa`` is 0.8 to 0.9 of ``1 / s``.
+    card_blue ``kappa`` is 0.86 to 0.93 of ``1 / s``.
     """
-    return _scale(model, data, _pixel_residuals(model, data, values), _censored_renders(model, data, values))
-
-
-def _scale(model, data: ModelData, resid: Tensor, r: Tensor | None) -> tuple[Tensor, Tensor]:
     n = resid.shape[0]
     lap = model.likelihood == "laplace"
     if model.sigma != "auto":
@@ -75,7 +70,7 @@ def _censored_renders(model, data: ModelData, values: dict) -> Tensor | None:
 
 
 def _censored_terms(model, data: ModelData, r: Tensor, sigma: Tensor, slope: bool = False) -> Tensor:
-    """``[n, K]``: each saturated pixel's ``w log P(R + noise >= level)`` at noise scale ``sigma [n]``; with
+    """``[n, K, 3]``: each saturated pixel's ``w log P(R + noise >= level)`` at noise scale ``sigma [n]``; with
     ``slope``, their sum's derivative in ``sigma`` instead (``[n]``; ``t = (level - R) / (sigma g)``, so
     ``d log S / d sigma = (d log S / d t) (-t / sigma)``)."""
     c = data.censored
@@ -85,7 +80,7 @@ def _censored_terms(model, data: ModelData, r: Tensor, sigma: Tensor, slope: boo
     val = censored_log_survival(t, model.likelihood)
     w = c.weight.to(r)[None, :, None]
     if not slope:
-        return (val * w).sum(-1)
+        return val * w
     if model.likelihood == "laplace":
         dlog = torch.where(t >= 0, torch.full_like(t, -1.0), 1 - val.neg().exp())
     else:
@@ -94,39 +89,51 @@ def _censored_terms(model, data: ModelData, r: Tensor, sigma: Tensor, slope: boo
 
 
 def _pixel_residuals(model, data: ModelData, values: dict) -> Tensor:
-    """``w |y - R|`` (Laplace) or ``w (y - R)^2`` (Gaussian) summed over views and channels: ``[n, H, W]``."""
+    """``w |y - R|`` (Laplace) or ``w (y - R)^2`` (Gaussian) summed over views: ``[n, H, W, 3]``."""
     with torch.no_grad():
         img = shade(model.maps(values), data.gbuffer, backend=model.backend)          # [n, V, H, W, 3]
         r = img.sub_(data.images[None])
         r = r.abs_() if model.likelihood == "laplace" else r.square_()
-        return torch.einsum("nvhwc,vhw->nhw", r, data.noise_weight(model.likelihood))
+        return torch.einsum("nvhwc,vhw->nhwc", r, data.noise_weight(model.likelihood))
+
+
+def _likelihood(model, data: ModelData, resid: Tensor, r: Tensor | None, sigma: Tensor, kappa: Tensor) -> Tensor:
+    n, T = sigma.shape[0], model.resolution ** 2
+    out = resid.reshape(n, T, 3).double().mul_(kappa.reshape(n, 1, 1).double())
+    if r is not None:
+        idx = data.censored.gbuffer.texel.reshape(-1).to(out.device)
+        out = out.index_add(1, idx, _censored_terms(model, data, r, sigma).neg())
+    return out.mul_(data.scale)
+
+
+def texel_channel_energies(model, data: ModelData, values: dict, sigma: Tensor, kappa: Tensor) -> Tensor:
+    """``[n, R * R, 3]`` float64: each texel's pixels' share of the negative log-likelihood, channel by channel
+    (``kappa`` times their residual sum, less their censored terms at noise scale ``sigma``; both ``[n]``): what
+    :func:`texel_energies` sums, for a quadrature that integrates each channel's albedo apart
+    (:mod:`bayes_brdf.experiments.texel_truth`)."""
+    return _likelihood(model, data, _pixel_residuals(model, data, values), _censored_renders(model, data, values),
+                       sigma, kappa)
 
 
 def texel_energies(model, data: ModelData, values: dict, sigma: Tensor | None = None,
                    kappa: Tensor | None = None) -> tuple[Tensor, tuple[Tensor, Tensor]]:
     """``([n, R * R] float64, (sigma, kappa))``: each texel's negative log prior plus its pixels' share of the
-    negative log-likelihood: ``kappa`` times their residual sum, less their censored terms at noise scale
-    ``sigma`` (both ``[n]``; by default :func:`texel_scale` of ``values``, from the same renders), up to one
-    constant per texel.
+    negative log-likelihood (:func:`texel_channel_energies`), up to one constant per texel, at ``sigma`` and
+    ``kappa`` (by default the particles' own, :func:`_scale`, from the same renders).
 
     A texel-local move compares two states of one texel, so only differences matter; they agree with the
     full potential's to first order in ``1 / N`` (exactly with a fixed ``sigma``; tests/samplers/test_texel_moves.py).
     """
-    R = model.resolution
     resid = _pixel_residuals(model, data, values)
     r = _censored_renders(model, data, values)
     if sigma is None:
         sigma, kappa = _scale(model, data, resid, r)
-    n = sigma.shape[0]
-    out = resid.reshape(n, R * R).double().mul_(kappa.reshape(n, 1).double())
-    if r is not None:
-        idx = data.censored.gbuffer.texel.reshape(-1).to(out.device)
-        out = out.index_add(1, idx, _censored_terms(model, data, r, sigma).neg())
-    out = out.mul_(data.scale)
+    out = _likelihood(model, data, resid, r, sigma, kappa).sum(-1)
+    n, T = out.shape
     for name, x in values.items():
         lp = _prior_log_density(model, name, x)
         if lp is not None:
-            out = out.sub_(lp.double().reshape(n, -1, R * R).sum(1))
+            out = out.sub_(lp.double().reshape(n, -1, T).sum(1))
     return out, (sigma, kappa)
 
 

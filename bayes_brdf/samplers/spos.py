@@ -115,7 +115,7 @@ class SPOS(Configurable, Sampler):
     #                                  LOW_DIM dimensions (see the module docstring)
     texel_moves: int = 0             # every so many steps a texel-local Metropolis sweep (texel_moves.py), for
     #                                  models that offer texel energies; 0: never
-    texel_bandwidth: float = 0.5     # its proposal's jitter, in units of the other half's robust spread
+    texel_bandwidth: float = 2.5     # its proposal's jitter, in nearest-neighbour distances of the other half
 
     name = "spos"
     State = SPOSState

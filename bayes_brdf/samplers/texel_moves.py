@@ -21,7 +21,7 @@ particle does not depend on its own state, only on the other half's, so each tex
 of that texel invariant given the rest (an ensemble move, as emcee's split stretch move); the texels are
 independent given the noise scale, which is held at the particle's current level for the move (under
 ``sigma = "auto"`` a texel's share is the profile energy's derivative in the residual sum times its residual,
-:func:`~bayes_brdf.models.texel_energy.texel_scale`: one texel shifts the level by about one part in the
+:func:`~bayes_brdf.models.texel_energy.texel_energies`: one texel shifts the level by about one part in the
 number of pixels).
 """
 from __future__ import annotations
@@ -37,44 +37,29 @@ from ..models.texel_energy import offers_texel_energy, texel_energies
 def texel_layout(potential) -> Tensor | None:
     """``[T, k]``: the coordinates of ``z`` that hold each texel's values, or ``None`` when the potential's model
     does not offer texel energies (:func:`~bayes_brdf.models.texel_energy.offers_texel_energy`)."""
-    cached = getattr(potential, "_texel_layout", False)
-    if cached is not False:
-        return cached
     model, args = getattr(potential, "model", None), getattr(potential, "args", ())
-    layout = None
-    if args and offers_texel_energy(model, args[0]):
-        R = model.resolution
-        cols = []
-        for s in potential.sites:
-            if tuple(s.ushape[-2:]) != (R, R) or tuple(s.ushape) != tuple(s.shape):
-                return _keep(potential, None)
-            c = s.size // (R * R)
-            cols.append(s.offset + torch.arange(s.size).reshape(c, R * R).T)        # [T, c]
-        layout = torch.cat(cols, 1)
-    return _keep(potential, layout)
-
-
-def _keep(potential, layout):
-    try:
-        potential._texel_layout = layout
-    except AttributeError:
-        pass
-    return layout
+    if not (args and offers_texel_energy(model, args[0])):
+        return None
+    R = model.resolution
+    cols = []
+    for s in potential.sites:
+        if tuple(s.ushape[-2:]) != (R, R) or tuple(s.ushape) != tuple(s.shape):
+            return None
+        cols.append(s.offset + torch.arange(s.size).reshape(s.size // (R * R), R * R).T)      # [T, c]
+    return torch.cat(cols, 1)
 
 
 def texel_energy(potential, z: Tensor, scale: tuple[Tensor, Tensor] | None = None) -> tuple[Tensor, tuple]:
     """``([n, T] float64, scale)``: each texel's energy in unconstrained space (its constrained energy less the
-    log-Jacobian of its coordinates) at ``scale = (sigma, kappa)`` (:func:`~bayes_brdf.models.texel_energy.texel_scale`;
-    default: the particles' own)."""
+    log-Jacobian of its coordinates) at ``scale = (sigma, kappa)`` (default: the particles' own, as
+    :func:`~bayes_brdf.models.texel_energy.texel_energies` returns it)."""
     model, data = potential.model, potential.args[0]
     e, scale = texel_energies(model, data, potential.to_constrained(z), *(scale or ()))
     R = model.resolution
     for s, x in zip(potential.sites, torch.split(z, [s.size for s in potential.sites], dim=1)):
-        lo, hi = getattr(s.transform, "lo", None), getattr(s.transform, "hi", None)
-        if lo is None:
+        if getattr(s.transform, "lo", None) is None:
             continue                                    # unconstrained: no Jacobian
-        a = x.abs()
-        ladj = (-a - 2 * torch.log1p(torch.exp(-a))).reshape(z.shape[0], -1, R * R).sum(1)
+        ladj = _log_logistic(x).reshape(z.shape[0], -1, R * R).sum(1)     # log |dx/du| less log(hi - lo)
         e = e - ladj.to(e.dtype)
     return e, scale
 
@@ -120,8 +105,7 @@ def texel_move(z: Tensor, potential, rng: torch.Generator, groups: int = 1, band
         new = torch.where(okf[..., None], prop.reshape(-1, T, k), cur.reshape(-1, T, k))
         za = z[A]
         za[:, layout] = new
-        z[A] = za
-        e[A] = torch.where(okf, ep, e[A])
+        z[A] = za                                     # e[A] is not read again: the other half moves next
         accepted += int(ok.sum())
         proposed += ok.numel()
     return z, accepted / max(1, proposed)
@@ -146,8 +130,15 @@ def _log_q(x: Tensor, centres: Tensor, h: Tensor) -> Tensor:
     """The proposal's log density: the kernel density, and a defensive share of the standard logistic in every
     coordinate. Without it a particle alone in a weak mode has no partner near it, the proposal's density at
     its own place is tiny, and the move that would take it out is refused for that reason alone."""
-    wide = (-x.abs() - 2 * torch.log1p(torch.exp(-x.abs()))).sum(-1)              # log logistic density
+    wide = _log_logistic(x).sum(-1)
     return torch.logaddexp(math.log1p(-DEFENSIVE) + _log_kde(x, centres, h), math.log(DEFENSIVE) + wide)
+
+
+def _log_logistic(u: Tensor) -> Tensor:
+    """``log sigmoid(u) (1 - sigmoid(u))``, stable: the standard logistic's log density, which is also the
+    log-Jacobian of an interval bijection less ``log(hi - lo)``."""
+    a = u.abs()
+    return -a - 2 * torch.log1p(torch.exp(-a))
 
 
 def _log_kde(x: Tensor, centres: Tensor, h: Tensor) -> Tensor:
