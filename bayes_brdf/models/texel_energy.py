@@ -16,7 +16,7 @@ import math
 import torch
 from torch import Tensor
 
-from ..render.shade import shade
+from ..render.shade import shade, shade_pixel_loss
 from .data import ModelData
 from .likelihood import SIGMA_FLOOR, censored_log_survival
 
@@ -90,11 +90,8 @@ def _censored_terms(model, data: ModelData, r: Tensor, sigma: Tensor, slope: boo
 
 def _pixel_residuals(model, data: ModelData, values: dict) -> Tensor:
     """``w |y - R|`` (Laplace) or ``w (y - R)^2`` (Gaussian) summed over views: ``[n, H, W, 3]``."""
-    with torch.no_grad():
-        img = shade(model.maps(values), data.gbuffer, backend=model.backend)          # [n, V, H, W, 3]
-        r = img.sub_(data.images[None])
-        r = r.abs_() if model.likelihood == "laplace" else r.square_()
-        return torch.einsum("nvhwc,vhw->nhwc", r, data.noise_weight(model.likelihood))
+    return shade_pixel_loss(model.maps(values), data.gbuffer, data.images, data.noise_weight(model.likelihood),
+                            kind="l1" if model.likelihood == "laplace" else "l2", backend=model.backend)
 
 
 def _likelihood(model, data: ModelData, resid: Tensor, r: Tensor | None, sigma: Tensor, kappa: Tensor) -> Tensor:

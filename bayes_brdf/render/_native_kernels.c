@@ -4,6 +4,8 @@
  *   MODE_IMAGE_FWD  out[i, v, c, p]  = sum_l A (kd q + S F)
  *   MODE_IMAGE_BWD  d/d(kd, r, ks) of sum(gout * out)
  *   MODE_LOSS       e[i] = sum wgt * |out - y|  (or (out - y)^2), and its gradient when need_grad
+ *   MODE_PIXEL_LOSS out[i, c, p] = sum_v wgt * |out - y|  (or squared): the loss per pixel and channel, summed
+ *                   over the views only (a texel's share of the energy when the pixels are the texels; no gradient)
  * with A = scale * (n.l), q = (1 - ks) / pi (or 1 / pi), F = ks (1 - w) + w,
  * S = D G / (4 (n.l)(n.v)), w the Fresnel weight (precomputed per view and light); the terms are
  * the macros of _native_brdf.h, shared with the texel kernel (_native_texels.c: pixels that read
@@ -31,6 +33,7 @@
 #define MODE_IMAGE_FWD 0
 #define MODE_IMAGE_BWD 1
 #define MODE_LOSS 2
+#define MODE_PIXEL_LOSS 3
 
 #define ABS(x) ((x) < 0 ? -(x) : (x))
 #define SIGN(x) ((REAL)(((x) > 0) - ((x) < 0)))
@@ -81,6 +84,15 @@
         ar[j] += gF * sd; \
     }
 
+/* A view's loss per pixel and channel from the radiance arrays o, added into p0..p2 */
+#define PIXEL_LOOP(L2) \
+    _Pragma("omp simd") \
+    for (int64_t j = 0; j < m; j++) { \
+        const REAL d0 = o0[j] - Y0[j], d1 = o1[j] - Y1[j], d2 = o2[j] - Y2[j]; \
+        if (L2) { px0[j] += WG[j] * d0 * d0; px1[j] += WG[j] * d1 * d1; px2[j] += WG[j] * d2 * d2; } \
+        else { px0[j] += WG[j] * ABS(d0); px1[j] += WG[j] * ABS(d1); px2[j] += WG[j] * ABS(d2); } \
+    }
+
 /* The loss terms of a view from the radiance arrays o (several lights) */
 #define RESIDUAL_LOOP(L2) \
     _Pragma("omp simd") \
@@ -121,6 +133,7 @@ static inline void block(const struct args *restrict q, const int64_t i, const i
     REAL akd0[BLK] = {0}, akd1[BLK] = {0}, akd2[BLK] = {0}, aks0[BLK] = {0}, aks1[BLK] = {0},
          aks2[BLK] = {0}, ar[BLK] = {0}, e[BLK] = {0};
     REAL o0[BLK], o1[BLK], o2[BLK], g0[BLK], g1[BLK], g2[BLK];
+    REAL px0[BLK] = {0}, px1[BLK] = {0}, px2[BLK] = {0};   /* MODE_PIXEL_LOSS: the block's per-pixel sums */
     REAL sS[LMAX][BLK], sD[LMAX][BLK];  /* S and S * dlnS/dr per light, kept for the gradient pass */
     for (int64_t v = 0; v < V; v++) {
         const REAL *NV = nv + v * P + p0;
@@ -145,6 +158,11 @@ static inline void block(const struct args *restrict q, const int64_t i, const i
             for (int64_t j = 0; j < m; j++) { OUT[j] = o0[j]; OUT[P + j] = o1[j]; OUT[2 * P + j] = o2[j]; }
             continue;
         }
+        if (mode == MODE_PIXEL_LOSS) {
+            const REAL *Y0 = y + v * 3 * P + p0, *Y1 = Y0 + P, *Y2 = Y0 + 2 * P, *WG = wgt + v * P + p0;
+            if (l2) { PIXEL_LOOP(1) } else { PIXEL_LOOP(0) }
+            continue;
+        }
         if (mode == MODE_LOSS) {
             const REAL *Y0 = y + v * 3 * P + p0, *Y1 = Y0 + P, *Y2 = Y0 + 2 * P, *WG = wgt + v * P + p0;
             if (l2) { RESIDUAL_LOOP(1) } else { RESIDUAL_LOOP(0) }
@@ -166,6 +184,11 @@ static inline void block(const struct args *restrict q, const int64_t i, const i
                 ar[j] += gF * sD[l][j];
             }
         }
+    }
+    if (mode == MODE_PIXEL_LOSS) {
+        REAL *OUT = q->out + i * 3 * P + p0;
+        for (int64_t j = 0; j < m; j++) { OUT[j] = px0[j]; OUT[P + j] = px1[j]; OUT[2 * P + j] = px2[j]; }
+        return;
     }
     if (mode == MODE_LOSS) {
         double sum = 0;

@@ -42,7 +42,7 @@ _DIR = Path(__file__).parent
 _LOCK = threading.Lock()
 _FUNCTIONS: dict = {}
 _FAILED: set = set()
-MODE_IMAGE_FWD, MODE_IMAGE_BWD, MODE_LOSS = 0, 1, 2
+MODE_IMAGE_FWD, MODE_IMAGE_BWD, MODE_LOSS, MODE_PIXEL_LOSS = 0, 1, 2, 3
 MAX_LIGHTS = 4  # LMAX in the C sources
 
 
@@ -155,14 +155,16 @@ def _call(mode, maps, geo, ks_factor, *, y=None, wgt=None, gout=None, l2=False, 
     ``no_grad`` names maps whose gradients are not wanted (returned as ``None``: neither kernel writes them). A
     ``1 x 1`` map is one value per particle (``[n, 3, 1]``, ``[n, 1]``) for both kernels (flagged).
 
-    Returns ``(images [n, V, 3, P] or None, energies [n, blocks] or None, gradients shaped like the maps)``."""
+    Returns ``(images [n, V, 3, P] or None, energies [n, blocks] or None, gradients shaped like the maps)``;
+    ``MODE_PIXEL_LOSS`` (the pixel kernel only) returns the per-pixel losses ``[n, 3, P]`` in place of images."""
     kd, r, ks = maps
     nl, nv, nh2, w, amp = geo
     n = r.shape[0]
     V, L, P = nl.shape
     dt = kd.dtype
     grad = mode == MODE_IMAGE_BWD or need_grad
-    out = torch.empty(n, V, 3, P, dtype=dt) if mode == MODE_IMAGE_FWD else None
+    out = torch.empty(n, V, 3, P, dtype=dt) if mode == MODE_IMAGE_FWD else \
+        torch.empty(n, 3, P, dtype=dt) if mode == MODE_PIXEL_LOSS else None
     nt = torch.get_num_threads()
     extent = P if taps is None else max(m.shape[-1] for m in maps)      # values per channel of a full map
     const = [m.shape[-1] == 1 and extent > 1 for m in maps]
@@ -177,6 +179,8 @@ def _call(mode, maps, geo, ks_factor, *, y=None, wgt=None, gout=None, l2=False, 
                  *map(ptr, (kd, r, ks, nl, nv, nh2, w, amp, y, wgt, gout, out, epart, *grads)))
         grads = [g.sum(-1, keepdim=True) if g is not None and c else g for g, c in zip(grads, const)]
         return out, epart, grads
+    if mode == MODE_PIXEL_LOSS:
+        raise ValueError("per-pixel losses are computed by the pixel kernel only (no taps)")
     T = extent
     plan = taps.plan
     epart = torch.empty(n, plan.nchunk, dtype=torch.float64) if mode == MODE_LOSS else None
@@ -312,6 +316,18 @@ class NativeLoss(torch.autograd.Function):
             ge = ge.to(next(g.dtype for g in grads if g is not None))
             grads = [None if g is None else g * ge.reshape(-1, *([1] * (g.dim() - 1))) for g in grads]
         return (*_unflat(grads, ctx.shapes), *(None,) * 11)
+
+
+def pixel_losses(kd, r, ks, nl, nv, nh, vh, scale, y, wgt, ks_factor, l1) -> Tensor:
+    """``[n, 3, H, W]``: per pixel and channel, ``sum_v wgt |R - y|`` (``l1``) or ``sum_v wgt (R - y)^2`` over the
+    views (shapes as :class:`NativeLoss`; no gradient): the losses :class:`NativeLoss` sums, kept per pixel."""
+    hw = nl.shape[-2:]
+    n, maps, geo = prepare(kd, r, ks, nl, nv, nh, vh, scale, hw)
+    yy = y.reshape(y.shape[0], 3, -1).contiguous()
+    ww = wgt.expand(y.shape[0], 1, *hw).reshape(y.shape[0], -1).contiguous()
+    with torch.no_grad():
+        out, _, _ = _call(MODE_PIXEL_LOSS, maps, geo, ks_factor, y=yy, wgt=ww, l2=not l1)
+    return out.reshape(n, 3, *hw)
 
 
 def _unflat(grads, shapes):

@@ -363,6 +363,47 @@ def channels_first(target: Tensor, device, dtype) -> Tensor:
     return y
 
 
+def shade_pixel_loss(maps: SVBRDF, g: GBuffer, target: Tensor, weight: Tensor | float = 1.0, *, kind: str = "l1",
+                     ks_factor: bool = True, eps: float = 1e-8, backend: str = "auto") -> Tensor:
+    """``[n, H, W, 3]``: the loss of :func:`shade_loss` per pixel and channel, summed over the views only (no
+    gradient). On rectified views (``g.aligned``: every pixel is a texel) this is each texel's share of the loss,
+    what a texel-local move scores (:mod:`bayes_brdf.models.texel_energy`).
+
+    On rectified views without an environment light the native kernel computes it without materialising the
+    images (``fused.pixel_loss``); otherwise, and with ``backend="eager"``, the images are shaded and reduced
+    here (the reference the kernel is checked against).
+
+    Example:
+        >>> import torch
+        >>> from bayes_brdf.render import SVBRDF, PlanarSample, collocated_views
+        >>> g = GBuffer.build(collocated_views(2, 3.0, camera="rectified", resolution=4), PlanarSample(2.0))
+        >>> x = SVBRDF.constant(roughness=0.3)
+        >>> y = shade(x, g)[0]
+        >>> tuple(shade_pixel_loss(x, g, y + 0.01).shape), round(float(shade_pixel_loss(x, g, y + 0.01).max()), 4)
+        ((1, 4, 4, 3), 0.02)
+    """
+    if kind not in ("l1", "l2"):
+        raise InputError(f"unknown loss kind '{kind}'", fix="use l1 (Laplace) or l2 (Gaussian)")
+    V, (h, w) = g.num_views, g.resolution
+    if tuple(target.shape) != (V, h, w, 3):
+        raise InputError(f"target images have shape {tuple(target.shape)}, expected {(V, h, w, 3)}")
+    dev, dt = maps.albedo.device, maps.albedo.dtype
+    wt = torch.as_tensor(weight, device=dev, dtype=dt)
+    wt = wt.expand(V, h, w) if wt.dim() < 3 else wt
+    with torch.no_grad():
+        if backend == "eager" or not g.aligned or g.env is not None:
+            d = shade(maps, g, ks_factor=ks_factor, eps=eps, backend=backend).sub_(target.to(dev, dt)[None])
+            d = d.abs_() if kind == "l1" else d.square_()
+            return torch.einsum("nvhwc,vhw->nhwc", d, wt)
+        n, g, chunks = _chunks(maps, g, eps, None)
+        y = channels_first(target, dev, dt)
+        wt = wt[:, None]
+        total = 0.0
+        for s, e, args, _, _ in chunks:
+            total = total + fused.pixel_loss(*args, y[s:e], wt[s:e], ks_factor, kind == "l1")
+        return total.expand(n, 3, h, w).permute(0, 2, 3, 1)
+
+
 def shade_loss(maps: SVBRDF, g: GBuffer, target: Tensor, weight: Tensor | float = 1.0, *, kind: str = "l1",
                ks_factor: bool = True, eps: float = 1e-8, chunk_views: int | None = None,
                backend: str = "auto") -> Tensor:

@@ -4,7 +4,7 @@ import torch
 
 from bayes_brdf.render import SVBRDF, PlanarSample, PointLight, View, collocated_views
 from bayes_brdf.render.gbuffer import GBuffer
-from bayes_brdf.render.shade import shade, shade_loss
+from bayes_brdf.render.shade import shade, shade_loss, shade_pixel_loss
 
 RES = 8
 
@@ -116,3 +116,24 @@ def test_float32_fused_loss_is_deterministic_and_close_to_float64(impl):
     assert torch.equal(a, b)
     ref = shade_loss(SVBRDF(*(t.detach() for t in leaves), normal), g64, target.double(), backend="eager")
     torch.testing.assert_close(a.double(), ref, rtol=1e-5, atol=1e-6)
+
+
+@pytest.mark.needs_native
+@pytest.mark.parametrize("kind", ["l1", "l2"])
+@pytest.mark.parametrize("lights", [1, 2, 5])     # 5 > native.MAX_LIGHTS: the eager reduction, same numbers
+@pytest.mark.parametrize("constant", [False, True])
+def test_per_pixel_loss_matches_eager_and_sums_to_the_loss(kind, lights, constant):
+    """What a texel-local move scores: each pixel's loss summed over the views, from the kernel without images."""
+    g, leaves, normal = setup(lights=lights)
+    maps = [t.detach() for t in leaves]
+    if constant:                                   # a 1 x 1 roughness: one value per particle
+        maps[1] = maps[1][..., :1, :1].contiguous()
+    x = SVBRDF(*maps, normal)
+    target = shade(SVBRDF(*(t[:1] * 0.9 for t in maps), normal), g, backend="eager")[0]
+    weight = torch.rand(target.shape[:3], generator=torch.Generator().manual_seed(2), dtype=torch.float64)
+    fast = shade_pixel_loss(x, g, target, weight, kind=kind, backend="auto")
+    d = shade(x, g, backend="eager") - target
+    want = torch.einsum("nvhwc,vhw->nhwc", d.abs() if kind == "l1" else d * d, weight)
+    torch.testing.assert_close(fast, want, rtol=1e-10, atol=1e-12)
+    torch.testing.assert_close(shade_pixel_loss(x, g, target, weight, kind=kind, backend="eager"), want)
+    torch.testing.assert_close(fast.flatten(1).sum(1), shade_loss(x, g, target, weight, kind=kind, backend="eager"))
