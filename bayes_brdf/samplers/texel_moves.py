@@ -26,12 +26,18 @@ number of pixels).
 """
 from __future__ import annotations
 
+import ctypes
 import math
+from pathlib import Path
 
 import torch
 from torch import Tensor
 
 from ..models.texel_energy import offers_texel_energy, texel_energies
+from ..render.native import native_function, ptr
+
+_KDE_SRC = Path(__file__).parent / "_native_texel_kde.c"
+H_MIN = 1e-3        # the smallest kernel width (unconstrained units): identical centres still propose
 
 
 def texel_layout(potential) -> Tensor | None:
@@ -85,7 +91,7 @@ def texel_move(z: Tensor, potential, rng: torch.Generator, groups: int = 1, band
         A, B = rows[:, a_sl].reshape(-1), rows[:, b_sl]              # movers [G a]; others [G, b]
         na, nb = A.numel() // groups, B.shape[1]
         xb = z[B.reshape(-1)][:, layout].reshape(groups, nb, T, k)    # the other half's texel values
-        h = _local_scale(xb).mul_(bandwidth).clamp_min_(1e-3)                          # [G, T, k]
+        h = widths(xb, bandwidth)                                                      # [G, T, k]
         pick = torch.randint(nb, (groups, na, T), generator=rng).to(z.device)
         centre = torch.gather(xb, 1, pick[..., None].expand(-1, -1, -1, k))                  # [G, a, T, k]
         jitter = torch.randn(centre.shape, generator=rng, dtype=z.dtype).to(z.device)
@@ -94,7 +100,7 @@ def texel_move(z: Tensor, potential, rng: torch.Generator, groups: int = 1, band
         v = torch.rand(centre.shape, generator=rng, dtype=torch.float64).clamp_(1e-12, 1 - 1e-12)
         prop = torch.where(wide[..., None], torch.logit(v).to(z.dtype).to(z.device), prop)
         cur = z[A][:, layout].reshape(groups, na, T, k)
-        lq_cur, lq_prop = _log_q(torch.cat([cur, prop], 1), xb, h).split(na, 1)        # one pass for both
+        lq_cur, lq_prop = log_q(torch.cat([cur, prop], 1), xb, h).split(na, 1)         # one pass for both
         zp = z[A].clone()
         zp[:, layout] = prop.reshape(-1, T, k)
         ep, _ = texel_energy(potential, zp, (sigma[A], kappa[A]))
@@ -109,6 +115,47 @@ def texel_move(z: Tensor, potential, rng: torch.Generator, groups: int = 1, band
         accepted += int(ok.sum())
         proposed += ok.numel()
     return z, accepted / max(1, proposed)
+
+
+def widths(xb: Tensor, bandwidth: float) -> Tensor:
+    """``[G, T, k]``: the kernel density's widths per texel and coordinate from the centres ``xb [G, b, T, k]``:
+    ``bandwidth`` times their median nearest-neighbour distance (:func:`_local_scale`), at least :data:`H_MIN`. The
+    native kernel where it runs (CPU), else the torch reference."""
+    fn = _kde_kernel("bb_texel_scale", xb)
+    if fn is not None:
+        c = xb.permute(0, 2, 1, 3).contiguous()                                         # [G, T, b, k]
+        G, T, b, k = c.shape
+        h = torch.empty(G, T, k, dtype=xb.dtype)
+        if fn(G, T, b, k, torch.get_num_threads(), ptr(c), float(bandwidth), H_MIN, ptr(h)) == 0:
+            return h
+    return _local_scale(xb).mul_(bandwidth).clamp_min_(H_MIN)
+
+
+def log_q(x: Tensor, centres: Tensor, h: Tensor) -> Tensor:
+    """``[G, a, T]``: the proposal's log density at ``x [G, a, T, k]`` (:func:`_log_q`, the torch reference), from the
+    native kernel where it runs."""
+    fn = _kde_kernel("bb_texel_logq", x)
+    if fn is not None:
+        c = centres.permute(0, 2, 1, 3).contiguous()                                    # [G, T, b, k]
+        xs = x.permute(0, 2, 1, 3).contiguous()                                         # [G, T, a, k]
+        G, T, a, k = xs.shape
+        hh = h.to(x.dtype).contiguous()
+        out = torch.empty(G, T, a, dtype=x.dtype)
+        if fn(G, T, a, c.shape[2], k, torch.get_num_threads(), ptr(c), ptr(xs), ptr(hh), DEFENSIVE, ptr(out)) == 0:
+            return out.transpose(1, 2)
+    return _log_q(x, centres, h)
+
+
+def _kde_kernel(name: str, like: Tensor):
+    """The native kernel ``name`` of ``_native_texel_kde.c`` for tensors like ``like``, or ``None`` (CUDA, no
+    compiler, ``BAYES_BRDF_NO_NATIVE``): the torch reference runs instead."""
+    if like.device.type != "cpu":
+        return None
+    i64, vp, dbl = ctypes.c_int64, ctypes.c_void_p, ctypes.c_double
+    args = {"bb_texel_scale": [i64] * 5 + [vp, dbl, dbl, vp],
+            "bb_texel_logq": [i64] * 6 + [vp] * 3 + [dbl, vp]}[name]
+    return native_function(_KDE_SRC, name, like.dtype, args, restype=ctypes.c_int, extra_flags=("-ffast-math",),
+                           fallback="torch")
 
 
 def _local_scale(xb: Tensor) -> Tensor:

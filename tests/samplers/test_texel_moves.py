@@ -17,8 +17,8 @@ from bayes_brdf.models.data import ModelData
 from bayes_brdf.potential import Potential
 from bayes_brdf.runs.fingerprint import model_table
 from bayes_brdf.samplers.spos import SPOS
+from bayes_brdf.samplers import texel_moves as TM
 from bayes_brdf.samplers.texel_moves import texel_energy, texel_layout, texel_move
-
 
 
 @pytest.fixture(scope="module")
@@ -144,3 +144,26 @@ def test_a_run_with_texel_moves_resumes_exactly_after_ctrl_c(small, tmp_path):
     assert again.resumed_from > 0 and torch.equal(again.z, full.z)
     plain = run(make_sampler("spos", params={"texel_moves": 0})[0], pot, **kw)
     assert not torch.equal(plain.z, full.z)           # the sweeps did something
+
+
+@pytest.mark.needs_native
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_native_proposal_densities_match_the_torch_reference(dtype):
+    """The kernel widths and log densities of the C kernel against the torch functions, on bimodal texels with a
+    particle alone in a far mode and a texel whose centres coincide (the width floor)."""
+    gen = torch.Generator().manual_seed(0)
+    G, b, T, k = 2, 10, 300, 4
+    xb = torch.randn(G, b, T, k, generator=gen, dtype=dtype) * 0.3
+    xb[:, :3, ::2] += 4.0                                   # a second mode on every other texel
+    xb[:, 0, 1::3] -= 6.0                                   # one particle alone, far out
+    xb[:, :, -1] = 0.7                                      # identical centres: the width floor
+    h = TM.widths(xb, 2.5)
+    ref = TM._local_scale(xb).mul_(2.5).clamp_min_(TM.H_MIN)
+    torch.testing.assert_close(h, ref, rtol=1e-6, atol=0)
+    assert float(h[:, -1].max()) == pytest.approx(TM.H_MIN)
+    x = torch.cat([xb[:, :7] + 0.05, torch.randn(G, 13, T, k, generator=gen, dtype=dtype) * 3], 1)
+    got = TM.log_q(x, xb, h)
+    want = TM._log_q(x, xb, h)
+    assert got.shape == want.shape == (G, 20, T)
+    tol = 2e-4 if dtype == torch.float32 else 1e-10
+    torch.testing.assert_close(got, want, rtol=tol, atol=tol)
