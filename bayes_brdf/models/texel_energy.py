@@ -94,12 +94,17 @@ def _pixel_residuals(model, data: ModelData, values: dict) -> Tensor:
                             kind="l1" if model.likelihood == "laplace" else "l2", backend=model.backend)
 
 
-def _likelihood(model, data: ModelData, resid: Tensor, r: Tensor | None, sigma: Tensor, kappa: Tensor) -> Tensor:
+def _likelihood(model, data: ModelData, resid: Tensor, r: Tensor | None, sigma: Tensor, kappa: Tensor,
+                channels: bool = True) -> Tensor:
+    """``[n, T, 3]`` per channel, or with ``channels=False`` ``[n, T]`` summed over them (summed first: a third of
+    the work on the sampler's path)."""
     n, T = sigma.shape[0], model.resolution ** 2
-    out = resid.reshape(n, T, 3).double().mul_(kappa.reshape(n, 1, 1).double())
+    resid = resid.reshape(n, T, 3)
+    out = (resid if channels else resid.sum(-1)).double().mul_(kappa.reshape(n, *[1] * (1 + channels)).double())
     if r is not None:
         idx = data.censored.gbuffer.texel.reshape(-1).to(out.device)
-        out = out.index_add(1, idx, _censored_terms(model, data, r, sigma).neg())
+        c = _censored_terms(model, data, r, sigma)
+        out = out.index_add(1, idx, (c if channels else c.sum(-1)).neg_())
     return out.mul_(data.scale)
 
 
@@ -125,7 +130,7 @@ def texel_energies(model, data: ModelData, values: dict, sigma: Tensor | None = 
     r = _censored_renders(model, data, values)
     if sigma is None:
         sigma, kappa = _scale(model, data, resid, r)
-    out = _likelihood(model, data, resid, r, sigma, kappa).sum(-1)
+    out = _likelihood(model, data, resid, r, sigma, kappa, channels=False)
     n, T = out.shape
     for name, x in values.items():
         lp = _prior_log_density(model, name, x)
