@@ -26,7 +26,6 @@ import warnings
 from dataclasses import dataclass
 from typing import NamedTuple
 
-import emcee
 import numpy as np
 import torch
 from torch import Tensor
@@ -87,6 +86,8 @@ class Emcee(Configurable, Sampler):
 
     def step(self, state, t, potential, rng):
         rs = ("MT19937", state.rng_keys.numpy().astype(np.uint32), state.rng_pos, 0, 0.0)
+        import emcee   # here, not at import: emcee pulls in scipy.stats (0.8 s of every command's start)
+
         cur = emcee.State(state.z.detach().cpu().double().numpy(), log_prob=state.log_prob.numpy(), random_state=rs)
         before = cur.coords.copy()
         new = state.ensemble.step(cur, potential)
@@ -141,6 +142,8 @@ class _EmceeRun:
 
     def __init__(self, n: int, D: int, stretch_a: float):
         self.potential = None
+        import emcee
+
         # we warn ourselves when n < 2 D (in init); emcee would raise instead
         move = emcee.moves.StretchMove(a=stretch_a, live_dangerously=n < 2 * D)
         self.sampler = emcee.EnsembleSampler(n, D, self._log_prob, moves=move, vectorize=True)
