@@ -214,13 +214,13 @@ class Posterior:
 
     def _adam(self, z0: Tensor, steps: int, lr: float) -> Tensor:
         """``steps`` of Adam on ``-log f`` (no Jacobian) from the rows of ``z0`` (each row independently)."""
-        z = z0.clone().requires_grad_(True)
-        opt = torch.optim.Adam([z], lr=lr)
+        from .optimize import Adam
+
+        z = z0.clone()
+        opt = Adam(z, lr=lr)
         for _ in range(steps):
-            opt.zero_grad()
-            _, z.grad = self.potential.value_and_grad(z.detach(), jacobian=False)
-            opt.step()
-        return z.detach()
+            opt.step(self.potential.value_and_grad(z, jacobian=False)[1])
+        return z
 
     #: refined optima within this many nats of -log f of each other count as equally good (see refine_map)
     MAP_TIE_NATS = 1.0

@@ -52,6 +52,7 @@ from torch.distributions import constraints
 
 from .. import checks
 from ..errors import InputError
+from ..optimize import Adam
 from .base import ObservedModel
 from .data import ModelData
 from ..render.maps import SVBRDF
@@ -284,19 +285,17 @@ class LatentDecoder(ObservedModel):
         schedule), with 0 every site steps every time (measured better here: docs/latent_decoder.md)."""
         steps = self.project_steps if steps is None else steps
         cuts = [(s.offset, s.offset + s.size) for s in pot.sites]
-        parts = [z0[:, a:b].clone().requires_grad_(True) for a, b in cuts]
-        opts = [torch.optim.Adam([p], lr=self.project_lr) for p in parts]
+        parts = [z0[:, a:b].clone() for a, b in cuts]
+        opts = [Adam(p, lr=self.project_lr) for p in parts]
         for t in range(steps):
-            e, grad = pot.value_and_grad(torch.cat([p.detach() for p in parts], 1), jacobian=False)
+            e, grad = pot.value_and_grad(torch.cat(parts, 1), jacobian=False)
             turn = [(t // self.project_alternate) % len(parts)] if self.project_alternate else range(len(parts))
             for k in turn:
                 a, b = cuts[k]
-                opts[k].zero_grad()
-                parts[k].grad = grad[:, a:b]
-                opts[k].step()
+                opts[k].step(grad[:, a:b])
             if log is not None:
                 log.append(float(e[0]))
-        return torch.cat([p.detach() for p in parts], 1)
+        return torch.cat(parts, 1)
 
 
 def latent_decoder(weights: str = "latent_decoder_64", **kw) -> LatentDecoder:

@@ -26,6 +26,7 @@ import torch
 from torch import Tensor
 
 from ..errors import InputError
+from ..optimize import newton
 
 PIXEL_NOISE = ("constant", "signal")
 
@@ -118,43 +119,45 @@ def fit_noise_level(signal: Tensor, residual: Tensor, *, kind: str = "laplace", 
         raise InputError(f"too few pixels ({y.numel()}) to estimate a noise level", fix="use pixel_noise = \"constant\"")
     y = y.clamp_min(0)
     ym = float(y.mean())
-    # start: a constant scale (the mean residual), split between the floor and the relative term
+    # start: a constant scale (the mean residual), split evenly between the three terms at the mean radiance (a
+    # term that must grow from nearly nothing is slow to find in log coordinates; one that must vanish is not)
     s0 = float(r.mean()) if kind == "laplace" else float(r.pow(2).mean().sqrt())
     s0 = max(s0, 1e-6)
-    theta = torch.tensor([math.log(0.5 * s0 * s0), math.log(1e-3 * s0 * s0 / max(ym, 1e-6)),
-                          math.log(0.5 * s0 * s0 / max(ym, 1e-6) ** 2)], dtype=torch.float64, requires_grad=True)
+    ym_ = max(ym, 1e-6)
+    theta = torch.tensor([math.log(s0 * s0 / 3), math.log(s0 * s0 / (3 * ym_)), math.log(s0 * s0 / (3 * ym_ ** 2))],
+                         dtype=torch.float64)
     y2 = y * y
     # every channel of a value shares its scale: the nll needs the channels' sum of |r| (Laplace) or of r^2 only
     C = r.shape[1]
     R = (r.sum(1) if kind == "laplace" else r.pow(2).sum(1)).div_(C)
 
-    def nll_and_grad():
-        """The mean nll per channel value and its gradient in ``theta = log(a, b, c)``, in closed form (one pass,
-        no autograd graph over the ``K`` values): with ``v = s^2``, ``d nll / d v = 1 / (2 v) - R / (2 v s)``
-        (Laplace) or ``1 / (2 v) - R / (2 v^2)`` (Gaussian)."""
-        a, b, c = theta.detach().exp()
-        v = (a + b * y + c * y2).add_(ex)
+    phi = torch.stack([torch.ones_like(y), y, y2])                                       # dv / d(a, b, c)
+
+    def nll(theta):
+        """The mean nll per channel value, its gradient and Hessian in ``theta = log(a, b, c)``, in closed form (one
+        pass over the ``K`` values): with ``v = s^2``, ``u_i = dv / dtheta_i = phi_i e^theta_i``, ``L_v`` and
+        ``L_vv`` the nll's derivatives in ``v`` (Laplace: ``1 / (2 v) - R / (2 v s)`` and
+        ``-1 / (2 v^2) + 3 R / (4 v^2 s)``; Gaussian: ``1 / (2 v) - R / (2 v^2)`` and ``-1 / (2 v^2) + R / v^3``),
+        ``g_i = mean(L_v u_i)`` and ``H_ij = mean(L_vv u_i u_j) + delta_ij g_i``."""
+        coef = theta.exp()
+        u = phi * coef[:, None]                                                           # [3, K]
+        v = u.sum(0).add_(ex)
         if kind == "laplace":
             s_ = v.sqrt()
             q = R / s_
             loss = (0.5 * v.log() + q).mean()
-            dv = (1 - q).div_(v).mul_(0.5)
+            lv = (1 - q).div_(v).mul_(0.5)
+            lvv = (0.75 * q - 0.5).div_(v * v)
         else:
             q = R / v
             loss = (0.5 * v.log() + 0.5 * q).mean()
-            dv = (1 - q).div_(v).mul_(0.5)
-        g = torch.stack([dv.mean() * a, (dv * y).mean() * b, (dv * y2).mean() * c])
-        return loss, g
+            lv = (1 - q).div_(v).mul_(0.5)
+            lvv = (q - 0.5).div_(v * v)
+        g = (u * lv).mean(1)
+        H = (u * lvv) @ u.T / y.numel() + torch.diag(g)
+        return float(loss), g, H
 
-    opt = torch.optim.LBFGS([theta], lr=1.0, max_iter=iters, line_search_fn="strong_wolfe",
-                            tolerance_grad=1e-12, tolerance_change=1e-14)
-
-    def closure():
-        loss, g = nll_and_grad()
-        theta.grad = g
-        return loss
-
-    opt.step(closure)
+    theta = newton(nll, theta, max_iter=iters)
     a, b, c = (float(v) for v in theta.detach().exp())
     if not all(math.isfinite(v) for v in (a, b, c)):
         raise InputError("the noise level fit did not converge", fix="use pixel_noise = \"constant\"")
