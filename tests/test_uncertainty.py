@@ -143,3 +143,17 @@ def test_correlations_against_numpy():
     assert correlations(torch.tensor([1.0, 2, 3]), torch.tensor([3.0, 2, 1]))["pearson"] == pytest.approx(-1.0)
     for bad in (correlations(torch.ones(5), torch.rand(5)), correlations(torch.rand(2), torch.rand(2))):
         assert math.isnan(bad["pearson"]) and math.isnan(bad["spearman"])
+
+
+def test_correlations_match_scipy_with_ties():
+    """Pearson and Spearman (ties at their average rank) as scipy computes them."""
+    from scipy.stats import pearsonr, spearmanr
+
+    gen = torch.Generator().manual_seed(0)
+    a = torch.randint(0, 30, (5000,), generator=gen).double() / 7      # many ties
+    b = a * 0.3 + torch.rand(5000, generator=gen, dtype=torch.float64)
+    b[::5] = 0.5                                                       # ties in the other too
+    c = correlations(a, b)
+    assert c["pearson"] == pytest.approx(pearsonr(a.numpy(), b.numpy())[0], abs=1e-12)
+    assert c["spearman"] == pytest.approx(spearmanr(a.numpy(), b.numpy())[0], abs=1e-12)
+    assert all(math.isnan(v) for v in correlations(torch.ones(10), b[:10]).values())

@@ -49,6 +49,7 @@ from ..inference import infer
 from ..models.material import per_texel
 from ..plots import line_plot, map_panel, panel_grid
 from ..render.views import View, collocated_views, hemisphere_directions, light_stage_views
+from ..uncertainty import correlations
 
 DESCRIPTION = "Fig. 3: parameter-space std (Eq. 9) and MAP errors of roughness vs number of observations"
 
@@ -103,10 +104,7 @@ def _quartiles(std: torch.Tensor, err: torch.Tensor) -> tuple[float, float]:
 
 
 def _spearman(a: torch.Tensor, b: torch.Tensor) -> float:
-    from scipy.stats import spearmanr
-
-    a, b = a.flatten().double().numpy(), b.flatten().double().numpy()
-    return float(spearmanr(a, b)[0]) if np.ptp(a) > 0 and np.ptp(b) > 0 else float("nan")
+    return correlations(a, b)["spearman"]
 
 
 def _fit(job: tuple, shared: tuple) -> tuple:
