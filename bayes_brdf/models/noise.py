@@ -130,32 +130,42 @@ def fit_noise_level(signal: Tensor, residual: Tensor, *, kind: str = "laplace", 
     # every channel of a value shares its scale: the nll needs the channels' sum of |r| (Laplace) or of r^2 only
     C = r.shape[1]
     R = (r.sum(1) if kind == "laplace" else r.pow(2).sum(1)).div_(C)
-
-    phi = torch.stack([torch.ones_like(y), y, y2])                                       # dv / d(a, b, c)
+    del r
+    K = y.numel()
 
     def nll(theta):
         """The mean nll per channel value, its gradient and Hessian in ``theta = log(a, b, c)``, in closed form (one
-        pass over the ``K`` values): with ``v = s^2``, ``u_i = dv / dtheta_i = phi_i e^theta_i``, ``L_v`` and
-        ``L_vv`` the nll's derivatives in ``v`` (Laplace: ``1 / (2 v) - R / (2 v s)`` and
-        ``-1 / (2 v^2) + 3 R / (4 v^2 s)``; Gaussian: ``1 / (2 v) - R / (2 v^2)`` and ``-1 / (2 v^2) + R / v^3``),
-        ``g_i = mean(L_v u_i)`` and ``H_ij = mean(L_vv u_i u_j) + delta_ij g_i``."""
+        pass over the ``K`` values, a few arrays of ``K``): with ``v = s^2 = a + b y + c y^2``, ``L_v`` and ``L_vv`` the
+        nll's derivatives in ``v`` (Laplace: ``1 / (2 v) - R / (2 v s)`` and ``-1 / (2 v^2) + 3 R / (4 v^2 s)``;
+        Gaussian: ``1 / (2 v) - R / (2 v^2)`` and ``-1 / (2 v^2) + R / v^3``) and ``u_i = dv / dtheta_i =
+        e^theta_i y^i``: ``g_i = mean(L_v u_i)`` and ``H_ij = e^(theta_i + theta_j) mean(L_vv y^(i + j)) +
+        delta_ij g_i``."""
         coef = theta.exp()
-        u = phi * coef[:, None]                                                           # [3, K]
-        v = u.sum(0).add_(ex)
+        a_, b_, c_ = (float(x) for x in coef)
+        v = (y2 * c_).add_(y, alpha=b_).add_(a_)
+        if extra is not None:
+            v.add_(ex)
         if kind == "laplace":
-            s_ = v.sqrt()
-            q = R / s_
-            loss = (0.5 * v.log() + q).mean()
+            q = R / v.sqrt()
+            loss = float((0.5 * v.log() + q).mean())
             lv = (1 - q).div_(v).mul_(0.5)
-            lvv = (0.75 * q - 0.5).div_(v * v)
+            lvv = q.mul_(0.75).sub_(0.5).div_(v).div_(v)
         else:
             q = R / v
-            loss = (0.5 * v.log() + 0.5 * q).mean()
+            loss = float((0.5 * v.log() + 0.5 * q).mean())
             lv = (1 - q).div_(v).mul_(0.5)
-            lvv = (q - 0.5).div_(v * v)
-        g = (u * lv).mean(1)
-        H = (u * lvv) @ u.T / y.numel() + torch.diag(g)
-        return float(loss), g, H
+            lvv = q.sub_(0.5).div_(v).div_(v)
+        g = torch.stack([lv.sum(), lv @ y, lv @ y2]) / K * coef
+        m = []                                  # mean(L_vv y^k), k = 0..4, by one running product
+        t = lvv
+        for k in range(5):
+            m.append(t.sum() / K)
+            if k < 4:
+                t = t * y if k == 0 else t.mul_(y)
+        m = torch.stack(m)
+        idx = torch.arange(3)
+        H = m[idx[:, None] + idx[None, :]] * coef[:, None] * coef[None, :] + torch.diag(g)
+        return loss, g, H
 
     theta = newton(nll, theta, max_iter=iters)
     a, b, c = (float(v) for v in theta.detach().exp())
