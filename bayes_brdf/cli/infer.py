@@ -74,12 +74,13 @@ def load(a, command: str, full: bool = False):
     return (obs, cap, out) if full else (obs, out)
 
 
-def sample(a, obs, out: Path, *, z0=None, start: dict | None = None):
+def sample(a, obs, out: Path, *, z0=None, start: dict | None = None, map_steps: int | None = None):
     """Sample the posterior for the parsed arguments ``a`` on ``obs``; checkpoints (and resumes) in ``out``.
 
     ``out`` must hold this run or nothing (:func:`~bayes_brdf.cli.run_folder.claim_folder`); the
     invocation is appended to ``out/run_log.jsonl``. ``z0``: start from these particles (a warm start,
-    ``recommend --from``), described by ``start`` in the run's fingerprint.
+    ``recommend --from``), described by ``start`` in the run's fingerprint. ``map_steps``: as
+    :func:`bayes_brdf.inference.infer` (0: the best particle is the MAP, not refined).
     """
     from ..errors import ConvergenceWarning
     from ..identity import observations_digest
@@ -98,7 +99,8 @@ def sample(a, obs, out: Path, *, z0=None, start: dict | None = None):
             warnings.simplefilter("ignore", ConvergenceWarning)
             post = infer(table, obs, a.sampler or "spos", seed=a.seed, particles=a.particles, steps=a.steps,
                          params=dict(a.param) or None, checkpoint=out / "checkpoint.pt",
-                         progress=sys.stderr.isatty(), device=a.device, observations_digest=digest, z0=z0)
+                         progress=sys.stderr.isatty(), device=a.device, observations_digest=digest, z0=z0,
+                         map_steps=map_steps)
     except Interrupted as e:
         log_run(out, {"status": f"interrupted at step {e.step}", "wall_seconds": time.perf_counter() - t})
         raise

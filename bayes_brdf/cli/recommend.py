@@ -165,8 +165,9 @@ def _run(a, nv, ex) -> int:
     fitted = list(range(len(full))) if a.views is None else list(a.views)
     # a bad --candidates or --candidate-light fails before the fit
     cands, labels = _candidates(a.candidates, full, fitted, a.candidate_light, a.flash_power)
+    # the recommendation reads the particles, never the MAP (Eq. 7): it is not refined (2 s of a 64² warm start)
     if prev is not None:
-        post = sample(a, obs, out, z0=prev.z, start=_start_label(a.from_run, prev))
+        post = sample(a, obs, out, z0=prev.z, start=_start_label(a.from_run, prev), map_steps=0)
         post.save(out / "posterior.safetensors")
     elif a.posterior:
         post = Posterior.load(a.posterior)
@@ -176,7 +177,7 @@ def _run(a, nv, ex) -> int:
         if post.surface is None:
             post.surface = full.surface
     else:
-        post = sample(a, obs, out)
+        post = sample(a, obs, out, map_steps=0)
         post.save(out / "posterior.safetensors")
     t_fit = time.perf_counter() - t0
     scores = None
