@@ -131,12 +131,12 @@ def test_a_run_with_texel_moves_resumes_exactly_after_ctrl_c(small, tmp_path):
     from bayes_brdf.samplers import make_sampler, run
     _, pot = small
     smp, _ = make_sampler("spos")
-    assert smp.texel_moves == 10
+    assert smp.texel_moves == 5
     kw = dict(particles=8, steps=40, seed=2, progress=False, checkpoint_every=10)
     full = run(smp, pot, checkpoint=tmp_path / "full.pt", **kw)
 
     def stop(t, state, info):
-        if t == 24:                                   # after the sweeps of steps 10 and 20, before the next
+        if t == 22:                                   # after the sweeps of steps 5 to 20, before the next
             raise KeyboardInterrupt
     with pytest.raises(KeyboardInterrupt):
         run(smp, pot, checkpoint=tmp_path / "cut.pt", callbacks=[stop], **kw)
