@@ -104,3 +104,12 @@ def test_any_broken_materialgan_capture_ends_cleanly(shared_data, tmp_path_facto
         (cap / extra).write_bytes(payload)
     argv = ["inspect", str(cap), "--resolution", "16"]
     _assert_clean(*_run(argv), argv)
+
+
+@pytest.mark.parametrize("steps", ["99999999999", "10000001"])
+def test_an_absurd_run_length_is_one_line_before_any_sampling(bundle, tmp_path, steps):
+    """hypothesis once drew --steps=99999999999: the energy trace's allocation (320 GB) was a traceback."""
+    code, err = _run(["fit", str(bundle), "--particles", "2", "--resolution", "8", "--out", str(tmp_path / "o"),
+                      f"--steps={steps}"])
+    _assert_clean(code, err, steps)
+    assert code == 2 and f"got {int(steps):,}" in err
