@@ -32,9 +32,10 @@ def offers_texel_energy(model, data) -> bool:
             and tuple(g.resolution) == (R, R) and isinstance(model.normals, str))
 
 
-def _scale(model, data: ModelData, resid: Tensor, r: Tensor | None) -> tuple[Tensor, Tensor]:
-    """``(sigma [n], kappa [n])``: the noise scale at which :func:`texel_energies` splits the likelihood, and
-    the weight of a texel's residual sum in the particle's energy there.
+def _scale(model, data: ModelData, resid: Tensor, r: Tensor | None) -> tuple[Tensor, Tensor, Tensor | None]:
+    """``(sigma [n], kappa [n], censored)``: the noise scale at which :func:`texel_energies` splits the likelihood,
+    the weight of a texel's residual sum in the particle's energy there, and the saturated pixels' censored terms
+    at that scale (:func:`_censored_terms`, from the same pass as their slope; ``None`` without them).
 
     With a fixed ``sigma``, ``kappa`` is ``1 / sigma`` (Laplace) or ``1 / (2 sigma^2)`` (Gaussian). Under
     ``sigma = "auto"`` the energy is the profile over the noise level, ``N log e - log P_censored(s(e))`` with
@@ -47,7 +48,7 @@ def _scale(model, data: ModelData, resid: Tensor, r: Tensor | None) -> tuple[Ten
     lap = model.likelihood == "laplace"
     if model.sigma != "auto":
         s = torch.full((n,), float(model.sigma), dtype=torch.float64, device=resid.device)
-        return s, (1 / s if lap else 1 / (2 * s * s))
+        return s, (1 / s if lap else 1 / (2 * s * s)), None if r is None else _censored_terms(model, data, r, s)
     e = resid.reshape(n, -1).sum(1).double()
     N = 3 * data.weight.sum().double()
     if lap:
@@ -56,9 +57,10 @@ def _scale(model, data: ModelData, resid: Tensor, r: Tensor | None) -> tuple[Ten
     else:
         s = (e / N).clamp_min(SIGMA_FLOOR ** 2).sqrt()
         kappa, ds_de = 1 / (2 * s * s), (e / N >= SIGMA_FLOOR ** 2).double() / (2 * s * N)
-    if r is not None:
-        kappa = kappa - _censored_terms(model, data, r, s, slope=True) * ds_de
-    return s, kappa
+    if r is None:
+        return s, kappa, None
+    cens, slope = _censored_terms(model, data, r, s, slope=True)
+    return s, kappa - slope * ds_de, cens
 
 
 def _censored_renders(model, data: ModelData, values: dict) -> Tensor | None:
@@ -69,9 +71,9 @@ def _censored_renders(model, data: ModelData, values: dict) -> Tensor | None:
         return shade(model.maps(values), c.gbuffer, backend=model.backend)[:, 0, 0].double()       # [n, K, 3]
 
 
-def _censored_terms(model, data: ModelData, r: Tensor, sigma: Tensor, slope: bool = False) -> Tensor:
+def _censored_terms(model, data: ModelData, r: Tensor, sigma: Tensor, slope: bool = False):
     """``[n, K, 3]``: each saturated pixel's ``w log P(R + noise >= level)`` at noise scale ``sigma [n]``; with
-    ``slope``, their sum's derivative in ``sigma`` instead (``[n]``; ``t = (level - R) / (sigma g)``, so
+    ``slope``, also their sum's derivative in ``sigma`` (``(terms, [n])``; ``t = (level - R) / (sigma g)``, so
     ``d log S / d sigma = (d log S / d t) (-t / sigma)``)."""
     c = data.censored
     n = r.shape[0]
@@ -81,11 +83,12 @@ def _censored_terms(model, data: ModelData, r: Tensor, sigma: Tensor, slope: boo
     w = c.weight.to(r)[None, :, None]
     if not slope:
         return val * w
+    terms = val * w
     if model.likelihood == "laplace":
         dlog = torch.where(t >= 0, torch.full_like(t, -1.0), 1 - val.neg().exp())
     else:
         dlog = (-0.5 * t * t - 0.5 * math.log(2 * math.pi) - val).exp().neg()
-    return (dlog * (-t) * w).sum((1, 2)) / sigma.to(r)
+    return terms, (dlog * (-t) * w).sum((1, 2)) / sigma.to(r)
 
 
 def _pixel_residuals(model, data: ModelData, values: dict) -> Tensor:
@@ -94,17 +97,16 @@ def _pixel_residuals(model, data: ModelData, values: dict) -> Tensor:
                             kind="l1" if model.likelihood == "laplace" else "l2", backend=model.backend)
 
 
-def _likelihood(model, data: ModelData, resid: Tensor, r: Tensor | None, sigma: Tensor, kappa: Tensor,
+def _likelihood(model, data: ModelData, resid: Tensor, cens: Tensor | None, kappa: Tensor,
                 channels: bool = True) -> Tensor:
     """``[n, T, 3]`` per channel, or with ``channels=False`` ``[n, T]`` summed over them (summed first: a third of
-    the work on the sampler's path)."""
-    n, T = sigma.shape[0], model.resolution ** 2
+    the work on the sampler's path); ``cens`` the saturated pixels' terms (:func:`_censored_terms`) or ``None``."""
+    n, T = kappa.shape[0], model.resolution ** 2
     resid = resid.reshape(n, T, 3)
     out = (resid if channels else resid.sum(-1)).double().mul_(kappa.reshape(n, *[1] * (1 + channels)).double())
-    if r is not None:
+    if cens is not None:
         idx = data.censored.gbuffer.texel.reshape(-1).to(out.device)
-        c = _censored_terms(model, data, r, sigma)
-        out = out.index_add(1, idx, (c if channels else c.sum(-1)).neg_())
+        out = out.index_add(1, idx, (cens if channels else cens.sum(-1)).neg())
     return out.mul_(data.scale)
 
 
@@ -113,8 +115,9 @@ def texel_channel_energies(model, data: ModelData, values: dict, sigma: Tensor, 
     (``kappa`` times their residual sum, less their censored terms at noise scale ``sigma``; both ``[n]``): what
     :func:`texel_energies` sums, for a quadrature that integrates each channel's albedo apart
     (:mod:`bayes_brdf.experiments.texel_truth`)."""
-    return _likelihood(model, data, _pixel_residuals(model, data, values), _censored_renders(model, data, values),
-                       sigma, kappa)
+    r = _censored_renders(model, data, values)
+    cens = None if r is None else _censored_terms(model, data, r, sigma)
+    return _likelihood(model, data, _pixel_residuals(model, data, values), cens, kappa)
 
 
 def texel_energies(model, data: ModelData, values: dict, sigma: Tensor | None = None,
@@ -129,8 +132,10 @@ def texel_energies(model, data: ModelData, values: dict, sigma: Tensor | None = 
     resid = _pixel_residuals(model, data, values)
     r = _censored_renders(model, data, values)
     if sigma is None:
-        sigma, kappa = _scale(model, data, resid, r)
-    out = _likelihood(model, data, resid, r, sigma, kappa, channels=False)
+        sigma, kappa, cens = _scale(model, data, resid, r)
+    else:
+        cens = None if r is None else _censored_terms(model, data, r, sigma)
+    out = _likelihood(model, data, resid, cens, kappa, channels=False)
     n, T = out.shape
     for name, x in values.items():
         lp = _prior_log_density(model, name, x)
