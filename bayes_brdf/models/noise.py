@@ -156,12 +156,11 @@ def fit_noise_level(signal: Tensor, residual: Tensor, *, kind: str = "laplace", 
             lv = (1 - q).div_(v).mul_(0.5)
             lvv = q.sub_(0.5).div_(v).div_(v)
         g = torch.stack([lv.sum(), lv @ y, lv @ y2]) / K * coef
-        m = []                                  # mean(L_vv y^k), k = 0..4, by one running product
-        t = lvv
+        m = []                                  # mean(L_vv y^k), k = 0..4, by one running product in place
         for k in range(5):
-            m.append(t.sum() / K)
+            m.append(lvv.sum() / K)
             if k < 4:
-                t = t * y if k == 0 else t.mul_(y)
+                lvv.mul_(y)
         m = torch.stack(m)
         idx = torch.arange(3)
         H = m[idx[:, None] + idx[None, :]] * coef[:, None] * coef[None, :] + torch.diag(g)

@@ -348,12 +348,11 @@ def compiled_loss(kd, r, ks, nl, nv, nh, vh, scale, y, wgt, ks_factor: bool = Tr
     return eager_loss(kd, r, ks, nl, nv, nh, vh, scale, y, wgt, ks_factor, l1)
 
 
-def pixel_loss(kd, r, ks, nl, nv, nh, vh, scale, y, wgt, ks_factor: bool = True, l1: bool = True,
-               native_kernel: bool = True) -> Tensor:
+def pixel_loss(kd, r, ks, nl, nv, nh, vh, scale, y, wgt, ks_factor: bool = True, l1: bool = True) -> Tensor:
     """``[n, 3, H, W]``: the loss of :func:`eager_loss` per pixel and channel, summed over the views only (no
-    gradient): the native kernel where :func:`_route` allows it (and ``native_kernel``), else the eager reference."""
+    gradient): the native kernel where :func:`_route` allows it, else the eager reference."""
     with torch.no_grad():
-        if native_kernel and _route(kd, r, ks, nl, nv, nh, vh, scale, torch_compile=False) == "native":
+        if _route(kd, r, ks, nl, nv, nh, vh, scale, torch_compile=False) == "native":
             return native.pixel_losses(kd, r, ks, nl, nv, nh, vh, scale, y, wgt, ks_factor, l1)
         d = eager_kernel(kd, r, ks, nl, nv, nh, vh, scale, ks_factor) - y
         return (wgt * (d.abs() if l1 else d * d)).sum(1)
