@@ -246,8 +246,11 @@ def _run(sampler, potential, *, particles: int = 20, steps: int = 1000, seed: in
             if e is not None:
                 trace[t] = float(e.double().mean())
             rec.add(t, e, z)
-            state, done, snap = new_state, t + 1, None   # committed: a checkpoint now resumes after step t
-            committed_evals = _evals(potential) - e0
+            spent = _evals(potential) - e0
+            # committed: a checkpoint now resumes after step t. One statement of plain stores, in which CPython
+            # never runs a signal handler: a Ctrl-C lands before it (step t is redone on resume) or after it,
+            # never between the state and its evaluation count.
+            state, done, snap, committed_evals = new_state, t + 1, None, spent
             for cb in callbacks:
                 cb(t, state, info)
             bar.update(1)

@@ -87,6 +87,49 @@ def test_resume_after_interrupt_inside_a_step_is_exact(name, tmp_path):
     assert not torch.equal(res.z, _run(name, seed=4).z)      # the comparison can fail
 
 
+class _CountingBanana(FunctionPotential):
+    """The banana, whose evaluation counter raises KeyboardInterrupt when read after step ``cut`` (a Ctrl-C landing
+    in the driver's bookkeeping between steps, after the step's particles exist)."""
+
+    def __init__(self, cut=None):
+        super().__init__(Banana().energy, 2)
+        self.cut, self.t = cut, -1
+
+    def energy(self, z, *, jacobian=True):
+        self._n += z.shape[0]
+        return self.fn(z)
+
+    @property
+    def evaluations(self):
+        if self.t == self.cut:
+            self.cut = None
+            raise KeyboardInterrupt
+        return self._n
+
+    @evaluations.setter
+    def evaluations(self, n):
+        self._n = n
+
+
+@pytest.mark.parametrize("name", RESUMABLE)
+def test_a_ctrl_c_between_steps_keeps_the_evaluation_count(name, tmp_path):
+    """Ctrl-C while the driver records step 25 (after its particles were made): the resumed run reports the same
+    particles and the same number of evaluations as an uninterrupted one (CI once saw one step's worth missing)."""
+    full = _run(name, _CountingBanana(), checkpoint=tmp_path / "full.pt", checkpoint_every=10)
+    pot = _CountingBanana(cut=25)
+
+    def clock(t, state, info):
+        pot.t = t + 1            # the counter is read after step t + 1's particles are made
+
+    ck = tmp_path / "cut.pt"
+    with pytest.raises(KeyboardInterrupt):
+        _run(name, pot, checkpoint=ck, checkpoint_every=10, callbacks=[clock])
+    assert torch.load(ck, weights_only=True)["t"] == 25       # step 25 not committed: it is redone
+    res = _run(name, _CountingBanana(), checkpoint=ck, checkpoint_every=10)
+    assert res.resumed_from == 25 and torch.equal(res.z, full.z)
+    assert res.evaluations == full.evaluations > 0
+
+
 @pytest.mark.parametrize("name", RESUMABLE)
 def test_resume_after_interrupt_in_callback_is_exact(name, tmp_path):
     """Ctrl-C after step 25 was taken (in a callback) resumes after it, bitwise exactly."""
