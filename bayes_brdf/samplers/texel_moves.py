@@ -55,12 +55,15 @@ def texel_layout(potential) -> Tensor | None:
     return torch.cat(cols, 1)
 
 
-def texel_energy(potential, z: Tensor, scale: tuple[Tensor, Tensor] | None = None) -> tuple[Tensor, tuple]:
+def texel_energy(potential, z: Tensor, scale: tuple[Tensor, Tensor] | None = None,
+                 jacobian: bool = True) -> tuple[Tensor, tuple]:
     """``([n, T] float64, scale)``: each texel's energy in unconstrained space (its constrained energy less the
-    log-Jacobian of its coordinates) at ``scale = (sigma, kappa)`` (default: the particles' own, as
-    :func:`~bayes_brdf.models.texel_energy.texel_energies` returns it)."""
+    log-Jacobian of its coordinates; without it when not ``jacobian``) at ``scale = (sigma, kappa)`` (default: the
+    particles' own, as :func:`~bayes_brdf.models.texel_energy.texel_energies` returns it)."""
     model, data = potential.model, potential.args[0]
     e, scale = texel_energies(model, data, potential.to_constrained(z), *(scale or ()))
+    if not jacobian:
+        return e, scale
     R = model.resolution
     for s, x in zip(potential.sites, torch.split(z, [s.size for s in potential.sites], dim=1)):
         if getattr(s.transform, "lo", None) is None:
@@ -74,7 +77,9 @@ def texel_move(z: Tensor, potential, rng: torch.Generator, groups: int = 1, band
                layout: Tensor | None = None) -> tuple[Tensor, float]:
     """One texel-local Metropolis sweep over both halves of each group (see the module docstring).
 
-    Returns the new particles ``[G n, D]`` and the share of texel proposals accepted.
+    Returns the new particles ``[G n, D]`` and the share of texel proposals accepted. On CPU each half's move is
+    the native kernel's (:func:`_half_native`), elsewhere torch's (:func:`_half_torch`, the reference); the two
+    draw their randomness differently, so their particles differ, not their distribution.
     """
     layout = texel_layout(potential) if layout is None else layout
     N, D = z.shape
@@ -82,39 +87,95 @@ def texel_move(z: Tensor, potential, rng: torch.Generator, groups: int = 1, band
     if layout is None or n < 4:
         return z, 0.0
     z = z.clone()
-    e, (sigma, kappa) = texel_energy(potential, z)
     T, k = layout.shape
-    rows = torch.arange(N).reshape(groups, n)
     half = n // 2
+    native = _native_moves(z, n - half, k)
+    e, scale = texel_energy(potential, z, jacobian=not native)      # the kernel adds the Jacobian's difference
+    rows = torch.arange(N).reshape(groups, n)
     accepted, proposed = 0, 0
     for a_sl, b_sl in ((slice(0, half), slice(half, n)), (slice(half, n), slice(0, half))):
         A, B = rows[:, a_sl].reshape(-1), rows[:, b_sl]              # movers [G a]; others [G, b]
-        na, nb = A.numel() // groups, B.shape[1]
-        xb = z[B.reshape(-1)][:, layout].reshape(groups, nb, T, k)    # the other half's texel values
-        h = widths(xb, bandwidth)                                                      # [G, T, k]
-        pick = torch.randint(nb, (groups, na, T), generator=rng).to(z.device)
-        centre = torch.gather(xb, 1, pick[..., None].expand(-1, -1, -1, k))                  # [G, a, T, k]
-        jitter = torch.randn(centre.shape, generator=rng, dtype=z.dtype).to(z.device)
-        prop = centre + jitter * h[:, None]
-        wide = torch.rand((groups, na, T), generator=rng).to(z.device) < DEFENSIVE
-        v = torch.rand(centre.shape, generator=rng, dtype=torch.float64).clamp_(1e-12, 1 - 1e-12)
-        prop = torch.where(wide[..., None], torch.logit(v).to(z.dtype).to(z.device), prop)
-        cur = z[A][:, layout].reshape(groups, na, T, k)
-        lq_cur, lq_prop = log_q(torch.cat([cur, prop], 1), xb, h).split(na, 1)         # one pass for both
-        zp = z[A].clone()
-        zp[:, layout] = prop.reshape(-1, T, k)
-        ep, _ = texel_energy(potential, zp, (sigma[A], kappa[A]))
-        log_alpha = (e[A] - ep).reshape(groups, na, T) + (lq_cur - lq_prop).double()
-        u = torch.rand(log_alpha.shape, generator=rng, dtype=torch.float64).to(z.device)
-        ok = (u.log() < log_alpha) & torch.isfinite(ep.reshape(groups, na, T))
-        okf = ok.reshape(-1, T)
-        new = torch.where(okf[..., None], prop.reshape(-1, T, k), cur.reshape(-1, T, k))
-        za = z[A]
-        za[:, layout] = new
-        z[A] = za                                     # e[A] is not read again: the other half moves next
-        accepted += int(ok.sum())
-        proposed += ok.numel()
+        move = _half_native if native else _half_torch
+        accepted += move(z, e, scale, A, B, layout, potential, rng, bandwidth)
+        # e[A] is not read again: the other half moves next
+        proposed += A.numel() * T
     return z, accepted / max(1, proposed)
+
+
+def _half_torch(z: Tensor, e: Tensor, scale: tuple, A: Tensor, B: Tensor, layout: Tensor, potential,
+                rng: torch.Generator, bandwidth: float) -> int:
+    """The movers ``A [G a]`` proposed from the others ``B [G, b]`` and accepted, in torch; writes ``z`` in place and
+    returns how many texels moved."""
+    sigma, kappa = scale
+    T, k = layout.shape
+    groups, nb = B.shape
+    na = A.numel() // groups
+    xb = z[B.reshape(-1)][:, layout].reshape(groups, nb, T, k)    # the other half's texel values
+    h = widths(xb, bandwidth)                                                      # [G, T, k]
+    pick = torch.randint(nb, (groups, na, T), generator=rng).to(z.device)
+    centre = torch.gather(xb, 1, pick[..., None].expand(-1, -1, -1, k))                  # [G, a, T, k]
+    jitter = torch.randn(centre.shape, generator=rng, dtype=z.dtype).to(z.device)
+    prop = centre + jitter * h[:, None]
+    wide = torch.rand((groups, na, T), generator=rng).to(z.device) < DEFENSIVE
+    v = torch.rand(centre.shape, generator=rng, dtype=torch.float64).clamp_(1e-12, 1 - 1e-12)
+    prop = torch.where(wide[..., None], torch.logit(v).to(z.dtype).to(z.device), prop)
+    cur = z[A][:, layout].reshape(groups, na, T, k)
+    lq_cur, lq_prop = log_q(torch.cat([cur, prop], 1), xb, h).split(na, 1)         # one pass for both
+    zp = z[A].clone()
+    zp[:, layout] = prop.reshape(-1, T, k)
+    ep, _ = texel_energy(potential, zp, (sigma[A], kappa[A]))
+    log_alpha = (e[A] - ep).reshape(groups, na, T) + (lq_cur - lq_prop).double()
+    u = torch.rand(log_alpha.shape, generator=rng, dtype=torch.float64).to(z.device)
+    ok = (u.log() < log_alpha) & torch.isfinite(ep.reshape(groups, na, T))
+    okf = ok.reshape(-1, T)
+    new = torch.where(okf[..., None], prop.reshape(-1, T, k), cur.reshape(-1, T, k))
+    za = z[A]
+    za[:, layout] = new
+    z[A] = za
+    return int(ok.sum())
+
+
+KERNEL_MAX = (256, 8)    # the native move's bounds: particles per half, coordinates per texel
+
+
+def _native_moves(z: Tensor, half: int, k: int) -> bool:
+    """Whether the native move (:func:`_half_native`) runs for particles like ``z`` (CPU, a compiler, not
+    ``BAYES_BRDF_NO_NATIVE``) with halves of up to ``half`` particles and ``k`` coordinates per texel."""
+    return (half <= KERNEL_MAX[0] and k <= KERNEL_MAX[1] and z.is_contiguous()
+            and _kde_kernel("bb_texel_propose", z) is not None and _kde_kernel("bb_texel_accept", z) is not None)
+
+
+def _interval_coordinates(potential) -> Tensor:
+    """``[k]`` int64: 1 for the texel coordinates of :func:`texel_layout` that an interval bijection maps (their
+    log-Jacobian is the standard logistic's log density, less a constant), 0 for unconstrained ones."""
+    R = potential.model.resolution
+    return torch.cat([torch.full((s.size // (R * R),), int(getattr(s.transform, "lo", None) is not None),
+                                 dtype=torch.int64) for s in potential.sites])
+
+
+def _half_native(z: Tensor, e: Tensor, scale: tuple, A: Tensor, B: Tensor, layout: Tensor, potential,
+                 rng: torch.Generator, bandwidth: float) -> int:
+    """:func:`_half_torch` in two native calls around the proposals' energies (``bb_texel_propose``: draws, widths,
+    both log densities and the Jacobian's difference; ``bb_texel_accept``: the decisions, written into ``z``),
+    with two seeds drawn from ``rng``; ``e`` without the Jacobian (``texel_energy(..., jacobian=False)``)."""
+    propose, accept = _kde_kernel("bb_texel_propose", z), _kde_kernel("bb_texel_accept", z)
+    sigma, kappa = scale
+    T, k = layout.shape
+    groups, nb = B.shape
+    na, D = A.numel() // groups, z.shape[1]
+    lay, Ai, Bi = layout.contiguous(), A.contiguous(), B.reshape(-1).contiguous()
+    jac = _interval_coordinates(potential)
+    seeds = torch.randint(0, 2 ** 62, (2,), generator=rng).tolist()
+    zp = z[Ai]                                                       # the movers' rows; their texels replaced below
+    dlq = torch.empty(na * groups, T, dtype=torch.float64)
+    threads = torch.get_num_threads()
+    if propose(groups, T, na, nb, k, D, threads, ptr(z), ptr(lay), ptr(jac), ptr(Ai), ptr(Bi), seeds[0],
+               float(bandwidth), H_MIN, DEFENSIVE, ptr(zp), ptr(dlq)) != 0:
+        raise RuntimeError(f"bb_texel_propose refused {na} + {nb} particles of {k} coordinates")
+    ep, _ = texel_energy(potential, zp, (sigma[Ai], kappa[Ai]), jacobian=False)
+    ep, e = ep.double().contiguous(), e.double().contiguous()
+    return int(accept(na * groups, T, k, D, threads, ptr(z), ptr(lay), ptr(Ai), ptr(zp), ptr(e), ptr(ep), ptr(dlq),
+                      seeds[1]))
 
 
 def widths(xb: Tensor, bandwidth: float) -> Tensor:
@@ -152,9 +213,12 @@ def _kde_kernel(name: str, like: Tensor):
     if like.device.type != "cpu":
         return None
     i64, vp, dbl = ctypes.c_int64, ctypes.c_void_p, ctypes.c_double
-    args = {"bb_texel_scale": [i64] * 5 + [vp, dbl, dbl, vp],
-            "bb_texel_logq": [i64] * 6 + [vp] * 3 + [dbl, vp]}[name]
-    return native_function(_KDE_SRC, name, like.dtype, args, restype=ctypes.c_int, extra_flags=("-ffast-math",),
+    u64 = ctypes.c_uint64
+    args, res = {"bb_texel_scale": ([i64] * 5 + [vp, dbl, dbl, vp], ctypes.c_int),
+                 "bb_texel_logq": ([i64] * 6 + [vp] * 3 + [dbl, vp], ctypes.c_int),
+                 "bb_texel_propose": ([i64] * 7 + [vp] * 5 + [u64, dbl, dbl, dbl, vp, vp], ctypes.c_int),
+                 "bb_texel_accept": ([i64] * 5 + [vp] * 7 + [u64], i64)}[name]
+    return native_function(_KDE_SRC, name, like.dtype, args, restype=res, extra_flags=("-ffast-math",),
                            fallback="torch")
 
 

@@ -72,8 +72,14 @@ def test_texel_energy_follows_the_profiled_noise_level_on_real_photos(shared_dat
             assert torch.allclose(et[:, t] - e[:, t], dU, rtol=0.01, atol=0.02), (t, c)
 
 
-def test_texel_moves_alone_sample_each_texels_exact_posterior_from_a_stranded_start(small):
+@pytest.mark.parametrize("path", ["native", "torch"])
+def test_texel_moves_alone_sample_each_texels_exact_posterior_from_a_stranded_start(small, path, monkeypatch):
+    """Both implementations of the move (the native kernels, and torch's where they do not run) on their own
+    sample each texel's exact posterior (quadrature), starting with every particle in the wrong mode."""
     prob, pot = small
+    if path == "torch":
+        monkeypatch.setenv("BAYES_BRDF_NO_NATIVE", "1")
+    assert TM._native_moves(pot.init(4, seed=0), 20, 2) == (path == "native")
     ex = H.exact_std(prob, check=False, cells=1000)
     z = pot.init(40, seed=0)
     L = texel_layout(pot)
@@ -167,3 +173,50 @@ def test_native_proposal_densities_match_the_torch_reference(dtype):
     assert got.shape == want.shape == (G, 20, T)
     tol = 2e-4 if dtype == torch.float32 else 1e-10
     torch.testing.assert_close(got, want, rtol=tol, atol=tol)
+
+
+@pytest.mark.needs_native
+def test_native_move_scores_its_proposals_as_the_torch_reference_does(small):
+    """``bb_texel_propose``'s log ratio for the proposals it drew: the torch kernel density at the current and
+    proposed values (widths from the other half) plus the Jacobian's difference, which its texel energies leave
+    out; and ``bb_texel_accept`` moves exactly the texels whose Metropolis test passes."""
+    from bayes_brdf.render.native import ptr
+    _, pot = small
+    z = pot.init(12, seed=3)
+    z[:3, texel_layout(pot)[::2, 1]] += 4.0                  # a second mode on every other texel
+    L = texel_layout(pot)
+    T, k = L.shape
+    A, B = torch.arange(6), torch.arange(6, 12).reshape(1, 6)
+    jac = TM._interval_coordinates(pot)
+    assert jac.tolist() == [1, 1]
+    zp, dlq = z[A], torch.empty(6, T, dtype=torch.float64)
+    fn = TM._kde_kernel("bb_texel_propose", z)
+    assert fn(1, T, 6, 6, k, z.shape[1], 2, ptr(z), ptr(L), ptr(jac), ptr(A), ptr(B), 12345, 2.5, TM.H_MIN,
+              TM.DEFENSIVE, ptr(zp), ptr(dlq)) == 0
+    cur, prop = z[A][:, L][None], zp[:, L][None]                                  # [1, a, T, k]
+    assert not torch.equal(cur, prop)
+    xb = z[B.reshape(-1)][:, L][None]
+    h = TM._local_scale(xb).mul_(2.5).clamp_min_(TM.H_MIN)
+    J = lambda x: TM._log_logistic(x).sum(-1)                                     # noqa: E731
+    want = TM._log_q(cur, xb, h) - TM._log_q(prop, xb, h) + J(prop) - J(cur)
+    torch.testing.assert_close(dlq[None], want, rtol=1e-10, atol=1e-10)
+    zc = z.clone()
+    zc[6:] = 0.3                                   # coinciding centres: the kernel's proposals stay within its floor
+    assert fn(1, T, 6, 6, k, z.shape[1], 2, ptr(zc), ptr(L), ptr(jac), ptr(A), ptr(B), 777, 2.5, TM.H_MIN,
+              TM.DEFENSIVE, ptr(zp), ptr(dlq)) == 0
+    near = (zp[:, L] - 0.3).abs().amax(-1) < 10 * TM.H_MIN
+    assert 0.05 < 1 - float(near.double().mean()) < 0.16                          # the defensive share, 0.1
+    zp = z[A]
+    assert fn(1, T, 6, 6, k, z.shape[1], 2, ptr(z), ptr(L), ptr(jac), ptr(A), ptr(B), 12345, 2.5, TM.H_MIN,
+              TM.DEFENSIVE, ptr(zp), ptr(dlq)) == 0
+    e = torch.randn(12, T, dtype=torch.float64)
+    ep = e[:6] + torch.randn(6, T, dtype=torch.float64)
+    ep[0, :5] = float("inf")                                                      # impossible proposals
+    z2 = z.clone()
+    n = TM._kde_kernel("bb_texel_accept", z)(6, T, k, z.shape[1], 2, ptr(z2), ptr(L), ptr(A), ptr(zp), ptr(e),
+                                              ptr(ep), ptr(dlq), 99)
+    moved = (z2[A][:, L] != z[A][:, L]).any(-1)
+    assert int(moved.sum()) == n and not bool(moved[0, :5].any())
+    log_alpha = e[:6] - ep + dlq
+    assert bool(moved[log_alpha > 30].all()) and not bool(moved[log_alpha < -30].any())
+    assert torch.equal(z2[A][:, L][moved], zp[:, L][moved])
