@@ -24,8 +24,8 @@ Checks, each computed on the CPU (the reference) and on the device, compared ele
   MI and mean std against the CPU in float32 (the estimator's common random numbers are drawn per dtype, so a
   float64 reference would differ by Monte Carlo noise, not rounding);
 * ``fit``             -- a short ``bb.infer`` (SPOS, per-texel model, tiny synthetic plane): both runs start from
-  the same particles (prior draws made on the CPU) and the samplers draw their noise from a CPU generator, so
-  they see the same random numbers and differ only by float32 rounding, which the dynamics amplify over the
+  the same particles (prior draws made on the CPU) and the samplers draw their noise from a CPU generator (the
+  texel moves on torch's path in both, ``texel_moves.reference_moves``), so they see the same random numbers and differ only by float32 rounding, which the dynamics amplify over the
   steps (at 100 steps of the full size, per-texel means already differed by 0.03 between two CPU runs that
   differ only in their kernels); compared are the posterior mean and std maps and the MAP, against the CPU in
   float32, with a loose tolerance (a tenth of the largest value).
@@ -442,6 +442,7 @@ def check_fit(S) -> Callable:
     from bayes_brdf.potential import Potential
     from bayes_brdf.render import SVBRDF, PlanarSample, collocated_views
     from bayes_brdf.render.shade import render
+    from bayes_brdf.samplers.texel_moves import reference_moves
 
     T = S["fit_tex"]
     views = collocated_views(S["fit_views"], 3.0, camera="rectified", resolution=T, method="sobol", power=10.0)
@@ -459,8 +460,10 @@ def check_fit(S) -> Callable:
         def run():
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")                  # a 30-step run does not converge: expected
-                post = bb.infer(model, obs, "spos", seed=0, steps=S["fit_steps"], dtype=dtype, device=device,
-                                z0=z0.to(device=device, dtype=dtype), map_steps=10, progress=False)
+                # the texel moves' torch path on the CPU too: the one CUDA runs, with the same random draws
+                with reference_moves():
+                    post = bb.infer(model, obs, "spos", seed=0, steps=S["fit_steps"], dtype=dtype, device=device,
+                                    z0=z0.to(device=device, dtype=dtype), map_steps=10, progress=False)
             mean, std, mp = post.mean(), post.map_std(), post.map()
             out = {f"mean {k}": v for k, v in mean.items()}
             out.update({f"std {k}": v for k, v in std.items()})

@@ -203,7 +203,7 @@ int bb_texel_propose(int64_t G, int64_t T, int64_t a, int64_t b, int64_t k, int6
                      const REAL *z, const int64_t *layout, const int64_t *jac, const int64_t *A, const int64_t *B,
                      uint64_t seed, double bw, double hmin, double defensive, REAL *zp, double *dlq)
 {
-    if (k > KMAX || b > BMAX || a > BMAX || b < 2 || 2 * k + 2 > 64)
+    if (k > KMAX || b > BMAX || a > BMAX || b < 2)     /* a mover's draws: 2 + k <= 10 of its stream's 64 */
         return 1;
 #pragma omp parallel for schedule(static) num_threads(nthreads)
     for (int64_t gt = 0; gt < G * T; gt++) {
@@ -218,8 +218,8 @@ int bb_texel_propose(int64_t G, int64_t T, int64_t a, int64_t b, int64_t k, int6
                 C[j * k + q] = (double)z[B[g * b + j] * D + col[q]];
         texel_scale(C, b, k, bw, hmin, H);
         kde_init(&K, C, H, b, k);
-        /* the draws of every mover first, then their transcendental functions as vector loops (libmvec):
-         * draw 0 picks the defensive logistic, 1 the centre, 2.. the coordinates (as pairs for Box-Muller) */
+        /* every mover's draws first, then their functions in loops of their own: draw 0 picks the defensive
+         * logistic, 1 the centre, 2.. the coordinates (as pairs for Box-Muller) */
         const int64_t ke = k + (k & 1);
         for (int64_t i = 0; i < a; i++) {
             const uint64_t stream = (uint64_t)((g * a + i) * T + t);

@@ -26,6 +26,7 @@ number of pixels).
 """
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import math
 from pathlib import Path
@@ -136,12 +137,28 @@ def _half_torch(z: Tensor, e: Tensor, scale: tuple, A: Tensor, B: Tensor, layout
 
 
 KERNEL_MAX = (256, 8)    # the native move's bounds: particles per half, coordinates per texel
+_REFERENCE = [False]     # set inside reference_moves()
+
+
+@contextlib.contextmanager
+def reference_moves():
+    """Inside the block every texel move takes torch's path (:func:`_half_torch`), on CPU too. Torch's path draws
+    its random numbers from the run's CPU generator on every device, so a CPU run inside this block and a CUDA run
+    see the same draws and differ only by rounding: what a check of the CUDA path against the CPU needs
+    (``benchmarks/gpu_check.py``). Not thread-safe: it sets a module-wide switch."""
+    before = _REFERENCE[0]
+    _REFERENCE[0] = True
+    try:
+        yield
+    finally:
+        _REFERENCE[0] = before
 
 
 def _native_moves(z: Tensor, half: int, k: int) -> bool:
     """Whether the native move (:func:`_half_native`) runs for particles like ``z`` (CPU, a compiler, not
-    ``BAYES_BRDF_NO_NATIVE``) with halves of up to ``half`` particles and ``k`` coordinates per texel."""
-    return (half <= KERNEL_MAX[0] and k <= KERNEL_MAX[1] and z.is_contiguous()
+    ``BAYES_BRDF_NO_NATIVE``, not inside :func:`reference_moves`) with halves of up to ``half`` particles and ``k``
+    coordinates per texel."""
+    return (not _REFERENCE[0] and half <= KERNEL_MAX[0] and k <= KERNEL_MAX[1] and z.is_contiguous()
             and _kde_kernel("bb_texel_propose", z) is not None and _kde_kernel("bb_texel_accept", z) is not None)
 
 
