@@ -137,12 +137,12 @@ def test_a_run_with_texel_moves_resumes_exactly_after_ctrl_c(small, tmp_path):
     from bayes_brdf.samplers import make_sampler, run
     _, pot = small
     smp, _ = make_sampler("spos")
-    assert smp.texel_moves == 5
+    assert smp.texel_moves == 3
     kw = dict(particles=8, steps=40, seed=2, progress=False, checkpoint_every=10)
     full = run(smp, pot, checkpoint=tmp_path / "full.pt", **kw)
 
     def stop(t, state, info):
-        if t == 22:                                   # after the sweeps of steps 5 to 20, before the next
+        if t == 22:                                   # after the sweeps of steps 2 to 20, before the next
             raise KeyboardInterrupt
     with pytest.raises(KeyboardInterrupt):
         run(smp, pot, checkpoint=tmp_path / "cut.pt", callbacks=[stop], **kw)
@@ -220,3 +220,20 @@ def test_native_move_scores_its_proposals_as_the_torch_reference_does(small):
     log_alpha = e[:6] - ep + dlq
     assert bool(moved[log_alpha > 30].all()) and not bool(moved[log_alpha < -30].any())
     assert torch.equal(z2[A][:, L][moved], zp[:, L][moved])
+
+
+def test_reference_moves_take_torch_path_on_cpu(small, monkeypatch):
+    """Inside ``reference_moves()`` a CPU sweep is torch's (the CUDA path's, with the same draws from the CPU
+    generator): the same particles as with the native kernels switched off, and not the native sweep's."""
+    _, pot = small
+    z = pot.init(12, seed=1)
+
+    def sweep():
+        return texel_move(z, pot, torch.Generator().manual_seed(5))[0]
+
+    with TM.reference_moves():
+        ref = sweep()
+    native, native_ran = sweep(), TM._native_moves(z, 6, 2)
+    monkeypatch.setenv("BAYES_BRDF_NO_NATIVE", "1")
+    assert torch.equal(ref, sweep())
+    assert not torch.equal(ref, native) or not native_ran
