@@ -20,7 +20,7 @@ from .presets import load_preset
 from .render.scene import surface_state
 from .samplers import make_sampler
 from .samplers.diagnostics import drawn
-from .samplers.driver import MAX_STEPS, run
+from .samplers.driver import check_run_length, run
 from .noise_estimate import with_render_noise
 
 
@@ -172,9 +172,8 @@ def infer(model: "Callable | str | dict", observations: "Observations | ModelDat
     auto = steps == "auto"
     if isinstance(steps, str) and not auto:
         raise InputError(f"steps must be a positive integer or \"auto\", got {steps!r}")
-    if isinstance(steps, int) and steps > MAX_STEPS:            # before the burn-in takes its share of it
-        raise InputError(f"steps must be at most {MAX_STEPS:,}, got {steps:,}",
-                         fix="a default run takes 500 to 8000 steps; a longer one can be resumed from its checkpoint")
+    if isinstance(steps, int):
+        check_run_length(steps)                                   # before the burn-in takes its share of it
     smp, cfg = make_sampler(sampler, params=params,
                             run={k: v for k, v in (("particles", particles), ("steps", None if auto else steps))
                                  if v is not None})

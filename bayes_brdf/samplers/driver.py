@@ -28,6 +28,13 @@ from .diagnostics import Diagnostics, diagnose
 FORMAT = "bayes-brdf-checkpoint/1"
 #: the longest run (its energy trace is preallocated: 80 MB; at 20 ms a step, two days)
 MAX_STEPS = 10_000_000
+
+
+def check_run_length(steps: int) -> None:
+    """One line (InputError) when a run of ``steps`` would be longer than :data:`MAX_STEPS`."""
+    if steps > MAX_STEPS:
+        raise InputError(f"steps must be at most {MAX_STEPS:,}, got {steps:,}",
+                         fix="a default run takes 500 to 8000 steps; a longer one can be resumed from its checkpoint")
 log = logging.getLogger("bayes_brdf")
 
 
@@ -169,9 +176,7 @@ def _run(sampler, potential, *, particles: int = 20, steps: int = 1000, seed: in
         span: tuple[int, int] | None = None) -> RunResult:
     if not isinstance(steps, int) or steps < 1:
         raise InputError(f"steps must be a positive integer, got {steps!r}")
-    if steps > MAX_STEPS or (isinstance(max_steps, int) and max_steps > MAX_STEPS):
-        raise InputError(f"steps must be at most {MAX_STEPS:,}, got {max(steps, max_steps or 0):,}",
-                         fix="a default run takes 500 to 8000 steps; a longer one can be resumed from its checkpoint")
+    check_run_length(max(steps, max_steps if isinstance(max_steps, int) else 0))
     if not isinstance(particles, int) or particles < 1:
         raise InputError(f"particles must be a positive integer, got {particles!r}")
     if max_steps is not None and (isinstance(max_steps, bool) or not isinstance(max_steps, int) or max_steps < steps):
