@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import contextlib
 import ctypes
+import functools
 import math
 from pathlib import Path
 
@@ -92,11 +93,15 @@ def texel_move(z: Tensor, potential, rng: torch.Generator, groups: int = 1, band
     half = n // 2
     native = _native_moves(z, n - half, k)
     e, scale = texel_energy(potential, z, jacobian=not native)      # the kernel adds the Jacobian's difference
+    if native:                                        # what both halves' kernels read, made once
+        e, layout = e.double().contiguous(), layout.contiguous()
+        move = functools.partial(_half_native, jac=_interval_coordinates(potential))
+    else:
+        move = _half_torch
     rows = torch.arange(N).reshape(groups, n)
     accepted, proposed = 0, 0
     for a_sl, b_sl in ((slice(0, half), slice(half, n)), (slice(half, n), slice(0, half))):
         A, B = rows[:, a_sl].reshape(-1), rows[:, b_sl]              # movers [G a]; others [G, b]
-        move = _half_native if native else _half_torch
         accepted += move(z, e, scale, A, B, layout, potential, rng, bandwidth)
         # e[A] is not read again: the other half moves next
         proposed += A.numel() * T
@@ -171,17 +176,17 @@ def _interval_coordinates(potential) -> Tensor:
 
 
 def _half_native(z: Tensor, e: Tensor, scale: tuple, A: Tensor, B: Tensor, layout: Tensor, potential,
-                 rng: torch.Generator, bandwidth: float) -> int:
+                 rng: torch.Generator, bandwidth: float, *, jac: Tensor) -> int:
     """:func:`_half_torch` in two native calls around the proposals' energies (``bb_texel_propose``: draws, widths,
     both log densities and the Jacobian's difference; ``bb_texel_accept``: the decisions, written into ``z``),
-    with two seeds drawn from ``rng``; ``e`` without the Jacobian (``texel_energy(..., jacobian=False)``)."""
+    with two seeds drawn from ``rng``; ``e`` float64 and contiguous, without the Jacobian
+    (``texel_energy(..., jacobian=False)``), ``layout`` contiguous, ``jac`` :func:`_interval_coordinates`."""
     propose, accept = _kde_kernel("bb_texel_propose", z), _kde_kernel("bb_texel_accept", z)
     sigma, kappa = scale
     T, k = layout.shape
     groups, nb = B.shape
     na, D = A.numel() // groups, z.shape[1]
-    lay, Ai, Bi = layout.contiguous(), A.contiguous(), B.reshape(-1).contiguous()
-    jac = _interval_coordinates(potential)
+    lay, Ai, Bi = layout, A.contiguous(), B.reshape(-1).contiguous()
     seeds = torch.randint(0, 2 ** 62, (2,), generator=rng).tolist()
     zp = z[Ai]                                                       # the movers' rows; their texels replaced below
     dlq = torch.empty(na * groups, T, dtype=torch.float64)
@@ -190,7 +195,7 @@ def _half_native(z: Tensor, e: Tensor, scale: tuple, A: Tensor, B: Tensor, layou
                float(bandwidth), H_MIN, DEFENSIVE, ptr(zp), ptr(dlq)) != 0:
         raise RuntimeError(f"bb_texel_propose refused {na} + {nb} particles of {k} coordinates")
     ep, _ = texel_energy(potential, zp, (sigma[Ai], kappa[Ai]), jacobian=False)
-    ep, e = ep.double().contiguous(), e.double().contiguous()
+    ep = ep.double().contiguous()
     return int(accept(na * groups, T, k, D, threads, ptr(z), ptr(lay), ptr(Ai), ptr(zp), ptr(e), ptr(ep), ptr(dlq),
                       seeds[1]))
 
