@@ -21,6 +21,7 @@
 #include <math.h>
 #include <omp.h>
 #include <stdint.h>
+#include <stdlib.h>
 #include <string.h>
 
 #define KMAX 8
@@ -193,77 +194,247 @@ static inline double uniform01(uint64_t seed, uint64_t stream, uint64_t idx)
     return ((double)(x >> 11) + 0.5) * 0x1.0p-53;
 }
 
+/* The whole move runs W texels at a time, one per SIMD lane: every loop below ends in a loop over the W lanes
+ * (arrays [..][W]), which the compiler turns into vector arithmetic and glibc's vector exp, log and sincos. A texel
+ * alone (texel_scale, kde_logq above) is too small for that: its loops run over 10 particles and 4 coordinates */
+#define W 8
+
 /* For every mover i (rows A [G a] of z [N, D], the group g = i / a) and texel t (its coordinates layout [T, k]):
  * the proposal (a random centre of the other half, rows B [G, b], plus N(0, h^2) jitter, or with probability
  * `defensive` a standard logistic draw in every coordinate) written to zp [G a, D] at the texel's columns, and
  * dlq [G a, T] = log q(current) - log q(proposal) + J(proposal) - J(current), J the log-Jacobian of the interval
  * coordinates (jac [k] nonzero: log logistic(x_q), less a constant), which the caller's texel energies leave out.
- * 0 on success, 1 outside the kernel's bounds */
+ * The widths and densities are texel_scale's and kde_logq's, lane by lane, in the same order of operations.
+ * 0 on success, 1 outside the kernel's bounds (or out of memory) */
 int bb_texel_propose(int64_t G, int64_t T, int64_t a, int64_t b, int64_t k, int64_t D, int64_t nthreads,
                      const REAL *z, const int64_t *layout, const int64_t *jac, const int64_t *A, const int64_t *B,
                      uint64_t seed, double bw, double hmin, double defensive, REAL *zp, double *dlq)
 {
     if (k > KMAX || b > BMAX || a > BMAX || b < 2)     /* a mover's draws: 2 + k <= 10 of its stream's 64 */
         return 1;
-#pragma omp parallel for schedule(static) num_threads(nthreads)
-    for (int64_t gt = 0; gt < G * T; gt++) {
-        const int64_t g = gt / T, t = gt % T;
-        const int64_t *col = layout + t * k;
-        Kde K;
-        double C[BMAX * KMAX], H[KMAX], X[2 * BMAX * KMAX], lq[2 * BMAX], lg[2 * BMAX * KMAX];
-        double un[BMAX * KMAX], nrm[BMAX * KMAX], lgt[BMAX * KMAX];
-        int64_t pick[BMAX], wide[BMAX];
-        for (int64_t j = 0; j < b; j++)
+    const int64_t nblk = (T + W - 1) / W, ke = k + (k & 1), mid = (b - 1) / 2;
+    const double l_kde = log1p(-defensive), l_def = log(defensive), two_pi = 2 * M_PI;
+    const double lnb = log((double)b) + k * 0.5 * log(2 * M_PI);
+    /* per thread, each in frames of [KMAX][W]: the centres, their scaled copies and their nearest-neighbour
+     * distances [b], the uniforms and normals [a], the points and their log-logistic terms [2 a]; and the kernel's
+     * exponents [b][W] */
+    const size_t per = (size_t)W * ((3 * b + 6 * a) * KMAX + b);
+    int failed = 0;
+#pragma omp parallel num_threads(nthreads) reduction(| : failed)
+    {
+        double *buf = malloc(per * sizeof(double));
+        if (!buf)
+            failed = 1;
+#pragma omp for schedule(static)
+        for (int64_t gb = 0; gb < G * nblk; gb++) {
+            if (!buf)
+                continue;
+            double (*C)[KMAX][W] = (double (*)[KMAX][W])buf;             /* only [b][k] of each used */
+            double (*cs)[KMAX][W] = C + b, (*dist)[KMAX][W] = cs + b;
+            double (*un)[KMAX][W] = dist + b, (*nrm)[KMAX][W] = un + a;
+            double (*X)[KMAX][W] = nrm + a, (*lg)[KMAX][W] = X + 2 * a;
+            double (*ex)[W] = (double (*)[W])(lg + 2 * a);
+            const int64_t g = gb / nblk, t0 = (gb % nblk) * W;
+            int64_t tl[W], pick[BMAX][W];
+            double wide[BMAX][W];
+            double H[KMAX][W], ih[KMAX][W], lognorm[W];
+            for (int l = 0; l < W; l++)
+                tl[l] = t0 + l < T ? t0 + l : T - 1;                /* lanes past the end repeat the last texel */
+            for (int64_t j = 0; j < b; j++) {
+                const REAL *zr = z + B[g * b + j] * D;
+                for (int64_t q = 0; q < k; q++)
+                    for (int l = 0; l < W; l++)
+                        C[j][q][l] = (double)zr[layout[tl[l] * k + q]];
+            }
+            /* the widths (texel_scale): each centre's nearest other centre, first on ties */
+            for (int64_t i = 0; i < b; i++) {
+                double best[W];
+                for (int l = 0; l < W; l++)
+                    best[l] = DBL_MAX;
+                for (int64_t j = 0; j < b; j++) {
+                    if (j == i)
+                        continue;
+                    double d2[W];
+#pragma omp simd
+                    for (int l = 0; l < W; l++)
+                        d2[l] = 0;
+                    for (int64_t q = 0; q < k; q++)
+#pragma omp simd
+                        for (int l = 0; l < W; l++) {
+                            const double d = C[i][q][l] - C[j][q][l];
+                            d2[l] += d * d;
+                        }
+                    for (int64_t q = 0; q < k; q++)
+#pragma omp simd
+                        for (int l = 0; l < W; l++)
+                            dist[i][q][l] = d2[l] < best[l] ? (double)(REAL)fabs(C[i][q][l] - C[j][q][l])
+                                                            : dist[i][q][l];
+#pragma omp simd
+                    for (int l = 0; l < W; l++)
+                        best[l] = d2[l] < best[l] ? d2[l] : best[l];
+                }
+            }
+            /* the median of an even count is the lower middle value: the one of rank (b - 1) / 2, ties by index */
+            for (int64_t q = 0; q < k; q++) {
+                double med[W];
+#pragma omp simd
+                for (int l = 0; l < W; l++)
+                    med[l] = 0;
+                for (int64_t i = 0; i < b; i++) {
+                    int64_t rank[W];
+#pragma omp simd
+                    for (int l = 0; l < W; l++)
+                        rank[l] = 0;
+                    for (int64_t j = 0; j < b; j++)
+#pragma omp simd
+                        for (int l = 0; l < W; l++)
+                            rank[l] += dist[j][q][l] < dist[i][q][l] || (dist[j][q][l] == dist[i][q][l] && j < i);
+#pragma omp simd
+                    for (int l = 0; l < W; l++)
+                        med[l] = rank[l] == mid ? dist[i][q][l] : med[l];
+                }
+#pragma omp simd
+                for (int l = 0; l < W; l++) {
+                    const REAL hq = (REAL)(med[l] * bw);
+                    H[q][l] = hq < (REAL)hmin ? (REAL)hmin : hq;
+                    ih[q][l] = 1 / H[q][l];
+                }
+            }
+            /* the kernel density (kde_init) */
+#pragma omp simd
+            for (int l = 0; l < W; l++)
+                lognorm[l] = lnb;
             for (int64_t q = 0; q < k; q++)
-                C[j * k + q] = (double)z[B[g * b + j] * D + col[q]];
-        texel_scale(C, b, k, bw, hmin, H);
-        kde_init(&K, C, H, b, k);
-        /* every mover's draws first, then their functions in loops of their own: draw 0 picks the defensive
-         * logistic, 1 the centre, 2.. the coordinates (as pairs for Box-Muller) */
-        const int64_t ke = k + (k & 1);
-        for (int64_t i = 0; i < a; i++) {
-            const uint64_t stream = (uint64_t)((g * a + i) * T + t);
-            wide[i] = uniform01(seed, stream, 0) < defensive;
-            pick[i] = (int64_t)(uniform01(seed, stream, 1) * b);
-            pick[i] = pick[i] < b ? pick[i] : b - 1;
-            for (int64_t q = 0; q < ke; q++)
-                un[i * ke + q] = uniform01(seed, stream, 2 + q);
-        }
 #pragma omp simd
-        for (int64_t m = 0; m < a * ke; m += 2) {      /* Box-Muller: two normals per pair of draws */
-            const double r = sqrt(-2 * log(un[m])), w = 2 * M_PI * un[m + 1];
-            nrm[m] = r * cos(w);
-            nrm[m + 1] = r * sin(w);
-        }
+                for (int l = 0; l < W; l++)
+                    lognorm[l] += log(H[q][l]);
+            for (int64_t j = 0; j < b; j++)
+                for (int64_t q = 0; q < k; q++)
 #pragma omp simd
-        for (int64_t m = 0; m < a * ke; m++) {          /* the standard logistic's quantile */
-            const double v = un[m] < 1e-12 ? 1e-12 : (un[m] > 1 - 1e-12 ? 1 - 1e-12 : un[m]);
-            lgt[m] = log(v) - log1p(-v);
-        }
-        for (int64_t i = 0; i < a; i++) {
-            const int64_t row = A[g * a + i];
-            double *cur = X + i * k, *prop = X + (a + i) * k;
-            for (int64_t q = 0; q < k; q++) {
-                cur[q] = (double)z[row * D + col[q]];
-                const double p = wide[i] ? lgt[i * ke + q] : C[pick[i] * k + q] + H[q] * nrm[i * ke + q];
-                prop[q] = (double)(REAL)p;             /* rounded as the particles are, scored as they will be */
+                    for (int l = 0; l < W; l++)
+                        cs[j][q][l] = C[j][q][l] * ih[q][l];
+            /* the draws: 0 picks the defensive logistic, 1 the centre, 2.. the coordinates (pairs for Box-Muller) */
+            for (int64_t i = 0; i < a; i++) {
+                const uint64_t s0 = (uint64_t)((g * a + i) * T + t0);    /* lane l's stream: s0 + l */
+#pragma omp simd
+                for (int l = 0; l < W; l++)
+                    wide[i][l] = uniform01(seed, s0 + (uint64_t)l, 0) < defensive;
+#pragma omp simd
+                for (int l = 0; l < W; l++) {
+                    const int64_t pk = (int64_t)(uniform01(seed, s0 + (uint64_t)l, 1) * b);
+                    pick[i][l] = pk < b ? pk : b - 1;
+                }
+                for (int64_t q = 0; q < ke; q++)
+#pragma omp simd
+                    for (int l = 0; l < W; l++)
+                        un[i][q][l] = uniform01(seed, s0 + (uint64_t)l, 2 + q);
+            }
+            /* Box-Muller; the cosines and sines in loops of their own, or the compiler fuses them into a scalar
+             * sincos call */
+            for (int64_t i = 0; i < a; i++)
+                for (int64_t q = 0; q < ke; q += 2) {
+                    double r[W];
+#pragma omp simd
+                    for (int l = 0; l < W; l++)
+                        r[l] = sqrt(-2 * log(un[i][q][l]));
+#pragma omp simd
+                    for (int l = 0; l < W; l++)
+                        nrm[i][q][l] = r[l] * cos(two_pi * un[i][q + 1][l]);
+#pragma omp simd
+                    for (int l = 0; l < W; l++)
+                        nrm[i][q + 1][l] = r[l] * sin(two_pi * un[i][q + 1][l]);
+                }
+            /* the points: the movers' current values (X[0..a)) and their proposals (X[a..2a)), rounded as the
+             * particles are, scored as they will be */
+            for (int64_t i = 0; i < a; i++) {
+                const REAL *zr = z + A[g * a + i] * D;
+                for (int64_t q = 0; q < k; q++) {
+                    for (int l = 0; l < W; l++)
+                        X[i][q][l] = (double)zr[layout[tl[l] * k + q]];
+                    double cp[W];
+                    for (int l = 0; l < W; l++)
+                        cp[l] = C[pick[i][l]][q][l];
+#pragma omp simd
+                    for (int l = 0; l < W; l++) {
+                        const double v = un[i][q][l] < 1e-12 ? 1e-12 : (un[i][q][l] > 1 - 1e-12 ? 1 - 1e-12 : un[i][q][l]);
+                        const double p = wide[i][l] != 0 ? log(v) - log1p(-v) : cp[l] + H[q][l] * nrm[i][q][l];
+                        X[a + i][q][l] = (double)(REAL)p;
+                    }
+                }
+            }
+            /* log logistic of every coordinate: the defensive density's terms and the Jacobian's */
+            for (int64_t p = 0; p < 2 * a; p++)
+                for (int64_t q = 0; q < k; q++)
+#pragma omp simd
+                    for (int l = 0; l < W; l++) {
+                        const double ax = fabs(X[p][q][l]);
+                        lg[p][q][l] = -ax - 2 * log1p(exp(-ax));
+                    }
+            /* the log densities (kde_logq), current minus proposed, plus the Jacobian's difference */
+            double out[2][W];
+            for (int64_t i = 0; i < a; i++) {
+                for (int s = 0; s < 2; s++) {
+                    const int64_t p = s * a + i;
+                    double mm[W], wd[W], sum[W];
+#pragma omp simd
+                    for (int l = 0; l < W; l++) { mm[l] = -DBL_MAX; wd[l] = l_def; sum[l] = 0; }
+                    double xs[KMAX][W];
+                    for (int64_t q = 0; q < k; q++)
+#pragma omp simd
+                        for (int l = 0; l < W; l++)
+                            xs[q][l] = X[p][q][l] * ih[q][l];
+                    for (int64_t j = 0; j < b; j++) {
+                        double e[W];          /* summed in a local array: a zeroed ex[j] reloaded whole stalls */
+#pragma omp simd
+                        for (int l = 0; l < W; l++)
+                            e[l] = 0;
+                        for (int64_t q = 0; q < k; q++)
+#pragma omp simd
+                            for (int l = 0; l < W; l++) {
+                                const double d = xs[q][l] - cs[j][q][l];
+                                e[l] -= 0.5 * d * d;
+                            }
+#pragma omp simd
+                        for (int l = 0; l < W; l++) {
+                            ex[j][l] = e[l];
+                            mm[l] = e[l] > mm[l] ? e[l] : mm[l];
+                        }
+                    }
+                    for (int64_t j = 0; j < b; j++)
+#pragma omp simd
+                        for (int l = 0; l < W; l++)
+                            sum[l] += exp(ex[j][l] - mm[l]);
+                    for (int64_t q = 0; q < k; q++)
+#pragma omp simd
+                        for (int l = 0; l < W; l++)
+                            wd[l] += lg[p][q][l];
+#pragma omp simd
+                    for (int l = 0; l < W; l++) {        /* logaddexp(kde, defensive) */
+                        const double u = l_kde + mm[l] + log(sum[l]) - lognorm[l];
+                        const double hi = u > wd[l] ? u : wd[l], lo = u > wd[l] ? wd[l] : u;
+                        out[s][l] = hi + log1p(exp(lo - hi));
+                    }
+                }
+                double dj[W];
+#pragma omp simd
+                for (int l = 0; l < W; l++)
+                    dj[l] = 0;
+                for (int64_t q = 0; q < k; q++)
+                    if (jac[q])
+#pragma omp simd
+                        for (int l = 0; l < W; l++)
+                            dj[l] += lg[a + i][q][l] - lg[i][q][l];
+                const int64_t row = g * a + i, nl = T - t0 < W ? T - t0 : W;
+                for (int l = 0; l < nl; l++) {
+                    dlq[row * T + t0 + l] = out[0][l] - out[1][l] + dj[l];
+                    for (int64_t q = 0; q < k; q++)
+                        zp[row * D + layout[(t0 + l) * k + q]] = (REAL)X[a + i][q][l];
+                }
             }
         }
-        kde_logq(&K, X, 2 * a, defensive, lq);
-#pragma omp simd
-        for (int64_t j = 0; j < 2 * a * k; j++)
-            lg[j] = -fabs(X[j]) - 2 * log1p(exp(-fabs(X[j])));
-        for (int64_t i = 0; i < a; i++) {
-            double dj = 0;
-            for (int64_t q = 0; q < k; q++) {
-                zp[(g * a + i) * D + col[q]] = (REAL)X[(a + i) * k + q];
-                if (jac[q])
-                    dj += lg[(a + i) * k + q] - lg[i * k + q];
-            }
-            dlq[(g * a + i) * T + t] = lq[i] - lq[a + i] + dj;
-        }
+        free(buf);
     }
-    return 0;
+    return failed;
 }
 
 /* Whether x is finite, from its bits: -ffast-math lets the compiler assume isfinite() and NaN comparisons away */
