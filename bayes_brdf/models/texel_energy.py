@@ -18,6 +18,7 @@ from torch import Tensor
 
 from ..render.shade import shade, shade_pixel_loss
 from .data import ModelData
+from .censored_kernel import censored_laplace
 from .likelihood import SIGMA_FLOOR, censored_log_survival
 
 
@@ -35,7 +36,8 @@ def offers_texel_energy(model, data) -> bool:
 def _scale(model, data: ModelData, resid: Tensor, r: Tensor | None) -> tuple[Tensor, Tensor, Tensor | None]:
     """``(sigma [n], kappa [n], censored)``: the noise scale at which :func:`texel_energies` splits the likelihood,
     the weight of a texel's residual sum in the particle's energy there, and the saturated pixels' censored terms
-    at that scale (:func:`_censored_terms`, from the same pass as their slope; ``None`` without them).
+    at that scale, summed over channels (:func:`_censored_terms`, from the same pass as their slope; ``None``
+    without them).
 
     With a fixed ``sigma``, ``kappa`` is ``1 / sigma`` (Laplace) or ``1 / (2 sigma^2)`` (Gaussian). Under
     ``sigma = "auto"`` the energy is the profile over the noise level, ``N log e - log P_censored(s(e))`` with
@@ -48,7 +50,8 @@ def _scale(model, data: ModelData, resid: Tensor, r: Tensor | None) -> tuple[Ten
     lap = model.likelihood == "laplace"
     if model.sigma != "auto":
         s = torch.full((n,), float(model.sigma), dtype=torch.float64, device=resid.device)
-        return s, (1 / s if lap else 1 / (2 * s * s)), None if r is None else _censored_terms(model, data, r, s)
+        return s, (1 / s if lap else 1 / (2 * s * s)), None if r is None else _censored_terms(model, data, r, s,
+                                                                                                  channels=False)
     e = resid.reshape(n, -1).sum(1).double()
     N = 3 * data.weight.sum().double()
     if lap:
@@ -59,7 +62,7 @@ def _scale(model, data: ModelData, resid: Tensor, r: Tensor | None) -> tuple[Ten
         kappa, ds_de = 1 / (2 * s * s), (e / N >= SIGMA_FLOOR ** 2).double() / (2 * s * N)
     if r is None:
         return s, kappa, None
-    cens, slope = _censored_terms(model, data, r, s, slope=True)
+    cens, slope = _censored_terms(model, data, r, s, slope=True, channels=False)
     return s, kappa - slope * ds_de, cens
 
 
@@ -71,11 +74,20 @@ def _censored_renders(model, data: ModelData, values: dict) -> Tensor | None:
         return shade(model.maps(values), c.gbuffer, backend=model.backend)[:, 0, 0].double()       # [n, K, 3]
 
 
-def _censored_terms(model, data: ModelData, r: Tensor, sigma: Tensor, slope: bool = False):
-    """``[n, K, 3]``: each saturated pixel's ``w log P(R + noise >= level)`` at noise scale ``sigma [n]``; with
+def _censored_terms(model, data: ModelData, r: Tensor, sigma: Tensor, slope: bool = False, channels: bool = True):
+    """``[n, K, 3]``: each saturated pixel's ``w log P(R + noise >= level)`` at noise scale ``sigma [n]`` (with
+    ``channels=False``, ``[n, K]`` summed over its channels: the native kernel's, for Laplace noise); with
     ``slope``, also their sum's derivative in ``sigma`` (``(terms, [n])``; ``t = (level - R) / (sigma g)``, so
     ``d log S / d sigma = (d log S / d t) (-t / sigma)``)."""
     c = data.censored
+    if not channels and model.likelihood == "laplace":
+        got = censored_laplace(r, c.level, sigma, c.noise, c.weight, terms=True)
+        if got is not None:
+            _, dsig, per_pixel, _ = got
+            return (per_pixel, dsig.to(sigma.dtype)) if slope else per_pixel
+    if not channels:
+        out = _censored_terms(model, data, r, sigma, slope)
+        return (out[0].sum(-1), out[1]) if slope else out.sum(-1)
     n = r.shape[0]
     sc = sigma.reshape(n, 1, 1).to(r) * (1 if c.noise is None else c.noise.to(r)[None, :, None])
     t = (c.level.to(r)[None] - r) / sc
@@ -100,13 +112,14 @@ def _pixel_residuals(model, data: ModelData, values: dict) -> Tensor:
 def _likelihood(model, data: ModelData, resid: Tensor, cens: Tensor | None, kappa: Tensor,
                 channels: bool = True) -> Tensor:
     """``[n, T, 3]`` per channel, or with ``channels=False`` ``[n, T]`` summed over them (summed first: a third of
-    the work on the sampler's path); ``cens`` the saturated pixels' terms (:func:`_censored_terms`) or ``None``."""
+    the work on the sampler's path); ``cens`` the saturated pixels' terms (:func:`_censored_terms`, ``[n, K, 3]``, or
+    ``[n, K]`` with ``channels=False``) or ``None``."""
     n, T = kappa.shape[0], model.resolution ** 2
     resid = resid.reshape(n, T, 3)
     out = (resid if channels else resid.sum(-1)).double().mul_(kappa.reshape(n, *[1] * (1 + channels)).double())
     if cens is not None:
         idx = data.censored.gbuffer.texel.reshape(-1).to(out.device)
-        out = out.index_add(1, idx, (cens if channels else cens.sum(-1)).neg())
+        out = out.index_add(1, idx, cens.to(out.dtype).neg())
     return out.mul_(data.scale)
 
 
@@ -134,7 +147,7 @@ def texel_energies(model, data: ModelData, values: dict, sigma: Tensor | None = 
     if sigma is None:
         sigma, kappa, cens = _scale(model, data, resid, r)
     else:
-        cens = None if r is None else _censored_terms(model, data, r, sigma)
+        cens = None if r is None else _censored_terms(model, data, r, sigma, channels=False)
     out = _likelihood(model, data, resid, cens, kappa, channels=False)
     n, T = out.shape
     for name, x in values.items():

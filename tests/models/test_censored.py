@@ -8,7 +8,8 @@ import torch
 import bayes_brdf as bb
 from bayes_brdf.errors import InputError
 from bayes_brdf.models.data import ModelData
-from bayes_brdf.models.likelihood import RenderedImages, censored_log_survival
+from bayes_brdf.models.censored_kernel import censored_laplace
+from bayes_brdf.models.likelihood import RenderedImages, _CensoredSum, censored_log_survival
 from bayes_brdf.observations import Observations
 from bayes_brdf.render import PlanarSample, collocated_views
 from bayes_brdf.render.gbuffer import GBuffer
@@ -37,6 +38,41 @@ def test_log_survival_matches_the_closed_form(kind, sf):
         assert float(far[0]) == pytest.approx(-60 - math.log(2))
     else:
         assert float(far[0]) == pytest.approx(-60 ** 2 / 2 - math.log(60 * math.sqrt(2 * math.pi)), rel=1e-3)
+
+
+@pytest.mark.needs_native
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+@pytest.mark.parametrize("noise", [False, True])
+def test_native_censored_terms_match_the_torch_expressions(dtype, noise):
+    """The native pass (censored_kernel.py) against the torch expressions and their autograd derivatives: the
+    sum per particle, each pixel's channel sum, and the derivatives in the renders and in the noise scale, on
+    renders far below, at and far above the clip (both branches, and t = 0)."""
+    gen = torch.Generator().manual_seed(3)
+    n, K = 5, 400
+    r = torch.rand(n, K, 3, generator=gen, dtype=torch.float64) * 2
+    level = torch.full((K, 3), 0.9, dtype=torch.float64)
+    r[0, :3] = level[:3]                                                      # t = 0 exactly
+    sigma = torch.rand(n, generator=gen, dtype=torch.float64) * 0.05 + 0.01
+    w = torch.rand(K, generator=gen, dtype=torch.float64) + 0.5
+    g = torch.rand(K, generator=gen, dtype=torch.float64) + 0.5 if noise else None
+    rr, ss = r.clone().requires_grad_(True), sigma.clone().requires_grad_(True)
+    scale = ss.reshape(-1, 1, 1) * (1 if g is None else g[None, :, None])
+    val = censored_log_survival((level[None] - rr) / scale, "laplace") * w[None, :, None]
+    d_r, d_s = torch.autograd.grad(val.sum(), (rr, ss))
+    d_r[0, :3] = w[:3, None] / scale[0, :3].detach()      # at t = 0 autograd takes the kink of |t| as 0: d log S / dt is -1
+    total, dsig, per_pixel, dr = censored_laplace(r.to(dtype), level.to(dtype), sigma, g, w, terms=True, grad=True)
+    tol = 1e-5 if dtype == torch.float32 else 1e-10
+    torch.testing.assert_close(total, val.sum((1, 2)).detach(), rtol=tol, atol=tol)
+    torch.testing.assert_close(per_pixel.double(), val.sum(2).detach(), rtol=tol, atol=tol)
+    torch.testing.assert_close(dr.double(), d_r, rtol=tol, atol=tol * 100)
+    torch.testing.assert_close(dsig, d_s, rtol=tol, atol=tol)
+    # and through the likelihood's autograd function, as a step calls it
+    rr2, ss2 = r.to(dtype).requires_grad_(True), sigma.to(dtype).requires_grad_(True)
+    out = _CensoredSum.apply(rr2, level.to(dtype), ss2, w.to(dtype), "laplace", None if g is None else g.to(dtype))
+    gr2, gs2 = torch.autograd.grad((out * torch.arange(1.0, n + 1, dtype=dtype)).sum(), (rr2, ss2))
+    weights = torch.arange(1.0, n + 1, dtype=torch.float64)
+    torch.testing.assert_close(gr2.double(), d_r * weights[:, None, None], rtol=tol, atol=tol * 100)
+    torch.testing.assert_close(gs2.double(), d_s * weights, rtol=tol * 10, atol=tol * 10)
 
 
 def _clipped_capture(camera="perspective", clip=None, R=12, seed=0):
