@@ -23,6 +23,9 @@ Checks, each computed on the CPU (the reference) and on the device, compared ele
 * ``guidance``        -- ``score_views`` (mutual information, MC estimator) of 200 candidate views: per-candidate
   MI and mean std against the CPU in float32 (the estimator's common random numbers are drawn per dtype, so a
   float64 reference would differ by Monte Carlo noise, not rounding);
+* ``censored``        -- the clipped highlights' censored Laplace terms and their gradients in the renders and the
+  noise scale (the likelihood's ``_CensoredSum``): the torch expressions on the device, the native pass on the CPU,
+  against float64;
 * ``fit``             -- a short ``bb.infer`` (SPOS, per-texel model, tiny synthetic plane): both runs start from
   the same particles (prior draws made on the CPU) and the samplers draw their noise from a CPU generator (the
   texel moves on torch's path in both, ``texel_moves.reference_moves``), so they see the same random numbers and differ only by float32 rounding, which the dynamics amplify over the
@@ -436,6 +439,31 @@ def check_guidance(S) -> Callable:
     return prepare
 
 
+def check_censored(S) -> Callable:
+    """The saturated pixels' censored Laplace terms as a step calls them (``_CensoredSum``): on the CPU the native
+    pass (models/censored_kernel.py), on CUDA the torch expressions; the sum per particle and its gradients."""
+    from bayes_brdf.models.likelihood import _CensoredSum
+
+    n, K = S["n"], S["res"] ** 2
+    gen = torch.Generator().manual_seed(4)
+    r = torch.rand(n, K, 3, generator=gen, dtype=F64) * 1.2
+    level = torch.full((K, 3), 0.95, dtype=F64)
+    sigma = torch.rand(n, generator=gen, dtype=F64) * 0.04 + 0.01
+    w = torch.rand(K, generator=gen, dtype=F64) + 0.5
+    g = torch.rand(K, generator=gen, dtype=F64) + 0.5
+
+    def prepare(device, dtype):
+        mv = lambda t: t.to(device=device, dtype=dtype)  # noqa: E731
+        rr, ss = mv(r).requires_grad_(), mv(sigma).requires_grad_()
+
+        def run():
+            out = _CensoredSum.apply(rr, mv(level), ss, mv(w), "laplace", mv(g))
+            d_r, d_s = torch.autograd.grad(out.sum(), (rr, ss))
+            return {"sum": out, "d/d render": d_r, "d/d sigma": d_s}
+        return run
+    return prepare
+
+
 def check_fit(S) -> Callable:
     import bayes_brdf as bb
     from bayes_brdf.models import ModelData
@@ -504,6 +532,7 @@ def checks(S, device: str, variant: str) -> list[Check]:
         Check("texels auto", lazy(lambda: check_texels(S, "auto", False)), grad_tol, expect=("gather",)),
         Check("texels compiled", lazy(lambda: check_texels(S, "compiled", True)), grad_tol, expect=("torch.compile",)),
         Check("guidance", lazy(lambda: check_guidance(S)), Tol(1e-3, 1e-4), ref_dtype=F32, expect=("torch KDE",)),
+        Check("censored", lazy(lambda: check_censored(S)), Tol(1e-4, 1e-5)),
         Check("fit", lazy(lambda: check_fit(S)), Tol(0.0, 0.1), ref_dtype=F32, repeats=1,
               tol_text="abs(d - r) <= 0.1 max(abs r)"),
     ]
