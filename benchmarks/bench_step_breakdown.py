@@ -17,7 +17,10 @@ albedo="rgb")``). Rows, median ms over ``--repeats`` calls each:
 * ``kernel matrix``: ``rbf_matrix`` (a Gram product and the median);
 * ``noise``: the step's normal draws (``standard_normal``);
 * ``update``: the fused SPOS update (``_native_spos.c``) or, with ``BAYES_BRDF_NO_NATIVE=1``, the torch one;
-* ``rest of the step`` = step - the others (Python, the annealing schedule, small tensors).
+* ``rest of the step`` = step - the others (Python, the annealing schedule, small tensors);
+* ``texel sweep``: the preset's texel-local Metropolis sweep (``texel_moves.texel_move``), which runs every
+  ``texel_moves`` steps on models that offer texel energies and is not in ``step``; the last line gives the mean
+  step with it.
 
 The bound: one pixel evaluation forward and backward is about 62 flops (docs/performance.md), so a
 value_and_grad is ``62 * n * V * R^2`` flops; the last line divides it by the step's time.
@@ -39,6 +42,7 @@ from bayes_brdf.render.native import ptr
 from bayes_brdf.samplers import make_sampler
 from bayes_brdf.samplers.kernels import rbf_matrix
 from bayes_brdf.samplers.numerics import standard_normal
+from bayes_brdf.samplers.texel_moves import texel_layout, texel_move
 
 
 def med(fn, repeats: int) -> float:
@@ -92,10 +96,16 @@ def main(argv=None):
         g = pot.value_and_grad(z)[1]
         noise = standard_normal(z.shape, rng, z.dtype)
         out, v1, v2 = torch.empty_like(z), torch.empty_like(state.precond.v), torch.empty_like(state.precond.v)
-        args = [1, a.particles, z.shape[1], torch.get_num_threads(), *(ptr(t) for t in (
+        D = z.shape[1]     # the preset's update after the annealing (what the "step" row times): its scope and units
+        args = [1, a.particles, D, torch.get_num_threads(), *(ptr(t) for t in (
             z, g, noise, K.contiguous(), ks, c2h, state.precond.v, state.precond_noise.v, out, v1, v2)),
-            1, 0, 0, 1, 1.0, 1.0, 1e-8, 0.99, 0.5, 0.5, 0.05, 1e-3]
+            int(sampler.preconditioner == "adam"), int(sampler.per_particle(D)), 0,
+            int(sampler.step_units == "spread"), 1.0, sampler.beta_for(D), sampler.eps_for(D), sampler.adam_beta2,
+            0.5, 0.5, sampler.step_size, sampler.min_spread]
         rows["update"] = med(lambda: S._native_update(z.dtype)(*args), a.repeats)
+    every = getattr(sampler, "texel_moves", 0)
+    if every and texel_layout(pot) is not None:     # the preset's texel sweep, every `every` steps (not in "step")
+        rows["texel sweep"] = med(lambda: texel_move(z, pot, rng), max(3, a.repeats // 3))
     rows["rest of the potential"] = rows["value_and_grad"] - rows["shading kernel"]
     rows["rest of the step"] = rows["step"] - rows["value_and_grad"] - rows["kernel matrix"] - rows["noise"] - \
         rows.get("update", 0.0)
@@ -107,6 +117,10 @@ def main(argv=None):
               "rest of the step"):
         if k in rows:
             print(f"| {k} | {rows[k]:.2f} | {rows[k] / rows['step']:.0%} |")
+    if "texel sweep" in rows:
+        print(f"| texel sweep (every {every} steps; not in the step) | {rows['texel sweep']:.2f} | "
+              f"{rows['texel sweep'] / rows['step']:.0%} |")
+        print(f"\nmean step with the sweep: {rows['step'] + rows['texel sweep'] / every:.2f} ms")
     flops = 62 * a.particles * a.views * a.res ** 2
     print(f"\n{flops / 1e9:.2f} Gflop per value_and_grad: {flops / rows['step'] / 1e6:.1f} Gflop/s over the step, "
           f"{flops / rows['shading kernel'] / 1e6:.1f} Gflop/s in the shading kernel")
