@@ -72,7 +72,7 @@ def test_texel_energy_follows_the_profiled_noise_level_on_real_photos(shared_dat
             assert torch.allclose(et[:, t] - e[:, t], dU, rtol=0.01, atol=0.02), (t, c)
 
 
-@pytest.mark.parametrize("path", ["native", "torch"])
+@pytest.mark.parametrize("path", [pytest.param("native", marks=pytest.mark.needs_native), "torch"])
 def test_texel_moves_alone_sample_each_texels_exact_posterior_from_a_stranded_start(small, path, monkeypatch):
     """Both implementations of the move (the native kernels, and torch's where they do not run) on their own
     sample each texel's exact posterior (quadrature), starting with every particle in the wrong mode."""
