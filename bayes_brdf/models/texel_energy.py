@@ -17,8 +17,8 @@ import torch
 from torch import Tensor
 
 from ..render.shade import shade, shade_pixel_loss
-from .data import ModelData
 from .censored_kernel import censored_laplace
+from .data import ModelData
 from .likelihood import SIGMA_FLOOR, censored_log_survival
 
 

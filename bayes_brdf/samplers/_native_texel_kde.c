@@ -1,5 +1,5 @@
-/* The proposal densities of the texel-local move (texel_moves.py), one texel at a time; compiled on first use by
- * render/native.py. The same arithmetic as texel_moves._local_scale and texel_moves._log_q (the torch reference,
+/* The proposal densities of the texel-local move (texel_moves.py); compiled on first use by render/native.py.
+ * bb_texel_scale and bb_texel_logq go one texel at a time, bb_texel_propose eight at a time (one per SIMD lane). The same arithmetic as texel_moves._local_scale and texel_moves._log_q (the torch reference,
  * which runs where this does not: CUDA, no compiler), in double inside, without the [T, a, b] temporaries.
  *
  * Per texel t of group g (inputs texel-major and contiguous: each texel's particles are adjacent):
@@ -10,7 +10,7 @@
  *                   is the lower middle value (torch.median's)
  *   logq [G, T, a]  bb_texel_logq: log((1 - defensive) KDE(x) + defensive prod_k logistic(x_k)), KDE the equal
  *                   mixture of N(c_j, diag h^2)
- * bb_texel_propose and bb_texel_accept are the whole move of one half (texel_moves._move_native): the proposal
+ * bb_texel_propose and bb_texel_accept are the whole move of one half (texel_moves._half_native): the proposal
  * drawn, both log densities, and the Metropolis decision, reading the particles in place (no [G, T, b, k] copies)
  * and drawing from a counter-based generator (one seed per call from torch's; each draw a hash of the seed and its
  * particle, texel and index), so they need no torch random tensors either.
