@@ -28,6 +28,7 @@ from .diagnostics import Diagnostics, diagnose
 FORMAT = "bayes-brdf-checkpoint/1"
 #: the longest run (its energy trace is preallocated: 80 MB; at 20 ms a step, two days)
 MAX_STEPS = 10_000_000
+log = logging.getLogger("bayes_brdf")
 
 
 def check_run_length(steps: int) -> None:
@@ -35,7 +36,6 @@ def check_run_length(steps: int) -> None:
     if steps > MAX_STEPS:
         raise InputError(f"steps must be at most {MAX_STEPS:,}, got {steps:,}",
                          fix="a default run takes 500 to 8000 steps; a longer one can be resumed from its checkpoint")
-log = logging.getLogger("bayes_brdf")
 
 
 class SamplerDiverged(InputError):

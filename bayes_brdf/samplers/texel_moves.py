@@ -186,17 +186,17 @@ def _half_native(z: Tensor, e: Tensor, scale: tuple, A: Tensor, B: Tensor, layou
     T, k = layout.shape
     groups, nb = B.shape
     na, D = A.numel() // groups, z.shape[1]
-    lay, Ai, Bi = layout, A.contiguous(), B.reshape(-1).contiguous()
+    Ai, Bi = A.contiguous(), B.reshape(-1).contiguous()
     seeds = torch.randint(0, 2 ** 62, (2,), generator=rng).tolist()
     zp = z[Ai]                                                       # the movers' rows; their texels replaced below
     dlq = torch.empty(na * groups, T, dtype=torch.float64)
     threads = torch.get_num_threads()
-    if propose(groups, T, na, nb, k, D, threads, ptr(z), ptr(lay), ptr(jac), ptr(Ai), ptr(Bi), seeds[0],
+    if propose(groups, T, na, nb, k, D, threads, ptr(z), ptr(layout), ptr(jac), ptr(Ai), ptr(Bi), seeds[0],
                float(bandwidth), H_MIN, DEFENSIVE, ptr(zp), ptr(dlq)) != 0:
         raise RuntimeError(f"bb_texel_propose refused {na} + {nb} particles of {k} coordinates")
     ep, _ = texel_energy(potential, zp, (sigma[Ai], kappa[Ai]), jacobian=False)
     ep = ep.double().contiguous()
-    return int(accept(na * groups, T, k, D, threads, ptr(z), ptr(lay), ptr(Ai), ptr(zp), ptr(e), ptr(ep), ptr(dlq),
+    return int(accept(na * groups, T, k, D, threads, ptr(z), ptr(layout), ptr(Ai), ptr(zp), ptr(e), ptr(ep), ptr(dlq),
                       seeds[1]))
 
 
