@@ -43,18 +43,19 @@ static void lane_texels(int64_t t0, int64_t T, int64_t tl[W])
 
 /* H [k][W]: bw * the median over the b centres C of |c_i - c_nn(i)| per coordinate, nn(i) the nearest other centre
  * (Euclidean; the first on ties), rounded to REAL, at least hmin; the median of an even count is the lower middle
- * value (torch.median's), found by rank (ties by index). dist [b]: scratch */
-static void lane_widths(const Lane *C, int64_t b, int64_t k, double bw, double hmin, Lane *dist, double H[KMAX][W])
+ * value (torch.median's), found by rank (ties by index). Each pair's distance is computed once, for both its
+ * centres, whose candidates still come in increasing index. dist [b], best [b]: scratch */
+static void lane_widths(const Lane *C, int64_t b, int64_t k, double bw, double hmin, Lane *dist, double (*best)[W],
+                        double H[KMAX][W])
 {
     const int64_t mid = (b - 1) / 2;
-    for (int64_t i = 0; i < b; i++) {
-        double best[W];
+    for (int64_t i = 0; i < b; i++)
+#pragma omp simd
         for (int l = 0; l < W; l++)
-            best[l] = DBL_MAX;
-        for (int64_t j = 0; j < b; j++) {
-            if (j == i)
-                continue;
-            double d2[W];
+            best[i][l] = DBL_MAX;
+    for (int64_t i = 0; i < b; i++)
+        for (int64_t j = i + 1; j < b; j++) {
+            double d2[W], ad[KMAX][W];
 #pragma omp simd
             for (int l = 0; l < W; l++)
                 d2[l] = 0;
@@ -63,30 +64,38 @@ static void lane_widths(const Lane *C, int64_t b, int64_t k, double bw, double h
                 for (int l = 0; l < W; l++) {
                     const double d = C[i][q][l] - C[j][q][l];
                     d2[l] += d * d;
+                    ad[q][l] = (double)(REAL)fabs(d);
                 }
             for (int64_t q = 0; q < k; q++)
 #pragma omp simd
-                for (int l = 0; l < W; l++)
-                    dist[i][q][l] = d2[l] < best[l] ? (double)(REAL)fabs(C[i][q][l] - C[j][q][l]) : dist[i][q][l];
+                for (int l = 0; l < W; l++) {
+                    dist[i][q][l] = d2[l] < best[i][l] ? ad[q][l] : dist[i][q][l];
+                    dist[j][q][l] = d2[l] < best[j][l] ? ad[q][l] : dist[j][q][l];
+                }
 #pragma omp simd
-            for (int l = 0; l < W; l++)
-                best[l] = d2[l] < best[l] ? d2[l] : best[l];
+            for (int l = 0; l < W; l++) {
+                best[i][l] = d2[l] < best[i][l] ? d2[l] : best[i][l];
+                best[j][l] = d2[l] < best[j][l] ? d2[l] : best[j][l];
+            }
         }
-    }
     for (int64_t q = 0; q < k; q++) {
         double med[W];
 #pragma omp simd
         for (int l = 0; l < W; l++)
             med[l] = 0;
         for (int64_t i = 0; i < b; i++) {
-            int64_t rank[W];
+            double rank[W];          /* the values below dist_i, ties counted for the lower indices */
 #pragma omp simd
             for (int l = 0; l < W; l++)
                 rank[l] = 0;
-            for (int64_t j = 0; j < b; j++)
+            for (int64_t j = 0; j < i; j++)
 #pragma omp simd
                 for (int l = 0; l < W; l++)
-                    rank[l] += dist[j][q][l] < dist[i][q][l] || (dist[j][q][l] == dist[i][q][l] && j < i);
+                    rank[l] += dist[j][q][l] <= dist[i][q][l];
+            for (int64_t j = i + 1; j < b; j++)
+#pragma omp simd
+                for (int l = 0; l < W; l++)
+                    rank[l] += dist[j][q][l] < dist[i][q][l];
 #pragma omp simd
             for (int l = 0; l < W; l++)
                 med[l] = rank[l] == mid ? dist[i][q][l] : med[l];
@@ -125,20 +134,44 @@ static void lane_kde_init(LaneKde *K, const Lane *C, const double H[KMAX][W], in
                 cs[j][q][l] = C[j][q][l] * K->ih[q][l];
 }
 
-/* lg [k][W]: log logistic(x) per coordinate, the defensive density's terms and the interval Jacobian's */
-static void lane_log_logistic(const double X[KMAX][W], int64_t k, double lg[KMAX][W])
+/* all [W]: sum_q log logistic(x_q), the defensive density's log; jsum [W] (when not NULL): the same over the
+ * coordinates with jac[q] != 0, the interval Jacobian's. log logistic(x) = -|x| - 2 log(1 + e^-|x|), and the logs of
+ * a sum are the log of a product (each factor in (1, 2]): one log per point, not one per coordinate */
+static void lane_log_logistic(const double X[KMAX][W], int64_t k, const int64_t *jac, double all[W], double jsum[W])
 {
-    for (int64_t q = 0; q < k; q++)
+    double sa[W], pa[W], sj[W], pj[W];
+    int alljac = 1;
 #pragma omp simd
-        for (int l = 0; l < W; l++) {
-            const double ax = fabs(X[q][l]);
-            lg[q][l] = -ax - 2 * log1p(exp(-ax));
+    for (int l = 0; l < W; l++) { sa[l] = 0; pa[l] = 1; sj[l] = 0; pj[l] = 1; }
+    for (int64_t q = 0; q < k; q++) {
+        if (jsum && jac[q]) {
+#pragma omp simd
+            for (int l = 0; l < W; l++) {
+                const double ax = fabs(X[q][l]), f = 1 + exp(-ax);
+                sa[l] -= ax; pa[l] *= f; sj[l] -= ax; pj[l] *= f;
+            }
+        } else {
+            alljac = 0;
+#pragma omp simd
+            for (int l = 0; l < W; l++) {
+                const double ax = fabs(X[q][l]);
+                sa[l] -= ax; pa[l] *= 1 + exp(-ax);
+            }
         }
+    }
+#pragma omp simd
+    for (int l = 0; l < W; l++)
+        all[l] = sa[l] - 2 * log(pa[l]);
+    if (!jsum)
+        return;
+#pragma omp simd
+    for (int l = 0; l < W; l++)
+        jsum[l] = alljac ? all[l] : sj[l] - 2 * log(pj[l]);
 }
 
-/* out [W]: log((1 - defensive) KDE(x) + defensive prod_k logistic(x_k)) at the point X [k][W] (lg its
- * lane_log_logistic), KDE the equal mixture of N(c_j, diag h^2); ex [b][W]: scratch */
-static void lane_logq(const LaneKde *K, const double X[KMAX][W], const double lg[KMAX][W], double (*ex)[W],
+/* out [W]: log((1 - defensive) KDE(x) + defensive prod_k logistic(x_k)) at the point X [k][W] (ll: the log of that
+ * product, lane_log_logistic's `all`), KDE the equal mixture of N(c_j, diag h^2); ex [b][W]: scratch */
+static void lane_logq(const LaneKde *K, const double X[KMAX][W], const double ll[W], double (*ex)[W],
                       double out[W])
 {
     const int64_t b = K->b, k = K->k;
@@ -170,10 +203,9 @@ static void lane_logq(const LaneKde *K, const double X[KMAX][W], const double lg
 #pragma omp simd
         for (int l = 0; l < W; l++)
             sum[l] += exp(ex[j][l] - mm[l]);
-    for (int64_t q = 0; q < k; q++)
 #pragma omp simd
-        for (int l = 0; l < W; l++)
-            wd[l] += lg[q][l];
+    for (int l = 0; l < W; l++)
+        wd[l] += ll[l];
 #pragma omp simd
     for (int l = 0; l < W; l++) {        /* logaddexp(kde, defensive) */
         const double u = K->l_kde + mm[l] + log(sum[l]) - K->lognorm[l];
@@ -202,7 +234,7 @@ int bb_texel_scale(int64_t G, int64_t T, int64_t b, int64_t k, int64_t nthreads,
     int failed = 0;
 #pragma omp parallel num_threads(nthreads) reduction(| : failed)
     {
-        Lane *buf = malloc(2 * b * sizeof(Lane));      /* the centres and their distances */
+        Lane *buf = malloc(2 * b * sizeof(Lane) + b * sizeof(double[W]));   /* centres, distances, nearest */
         failed = !buf;
 #pragma omp for schedule(static)
         for (int64_t gb = 0; gb < G * nblk; gb++) {
@@ -213,7 +245,7 @@ int bb_texel_scale(int64_t G, int64_t T, int64_t b, int64_t k, int64_t nthreads,
             double H[KMAX][W];
             lane_texels(t0, T, tl);
             gather_centres(c, g, T, b, k, tl, buf);
-            lane_widths(buf, b, k, bw, hmin, buf + b, H);
+            lane_widths(buf, b, k, bw, hmin, buf + b, (double (*)[W])(buf + 2 * b), H);
             for (int l = 0; l < nl; l++)
                 for (int64_t q = 0; q < k; q++)
                     h[(g * T + t0 + l) * k + q] = (REAL)H[q][l];
@@ -242,7 +274,7 @@ int bb_texel_logq(int64_t G, int64_t T, int64_t a, int64_t b, int64_t k, int64_t
                 continue;
             const int64_t g = gb / nblk, t0 = (gb % nblk) * W, nl = T - t0 < W ? T - t0 : W;
             int64_t tl[W];
-            double H[KMAX][W], X[KMAX][W], lg[KMAX][W], out[W];
+            double H[KMAX][W], X[KMAX][W], ll[W], out[W];
             LaneKde K;
             lane_texels(t0, T, tl);
             gather_centres(c, g, T, b, k, tl, buf);
@@ -254,8 +286,8 @@ int bb_texel_logq(int64_t G, int64_t T, int64_t a, int64_t b, int64_t k, int64_t
                 for (int64_t q = 0; q < k; q++)
                     for (int l = 0; l < W; l++)
                         X[q][l] = (double)x[((g * T + tl[l]) * a + p) * k + q];
-                lane_log_logistic(X, k, lg);
-                lane_logq(&K, X, lg, (double (*)[W])(buf + 2 * b), out);
+                lane_log_logistic(X, k, NULL, ll, NULL);
+                lane_logq(&K, X, ll, (double (*)[W])(buf + 2 * b), out);
                 for (int l = 0; l < nl; l++)
                     logq[(g * T + t0 + l) * a + p] = (REAL)out[l];
             }
@@ -318,7 +350,7 @@ int bb_texel_propose(int64_t G, int64_t T, int64_t a, int64_t b, int64_t k, int6
                     for (int l = 0; l < W; l++)
                         C[j][q][l] = (double)zr[layout[tl[l] * k + q]];
             }
-            lane_widths(C, b, k, bw, hmin, dist, H);
+            lane_widths(C, b, k, bw, hmin, dist, ex, H);       /* ex: scratch until the densities */
             lane_kde_init(&K, C, H, b, k, defensive, cs);
             /* the draws: 0 picks the defensive logistic, 1 the centre, 2.. the coordinates (pairs for Box-Muller) */
             for (int64_t i = 0; i < a; i++) {
@@ -364,27 +396,21 @@ int bb_texel_propose(int64_t G, int64_t T, int64_t a, int64_t b, int64_t k, int6
 #pragma omp simd
                     for (int l = 0; l < W; l++) {
                         const double v = un[i][q][l] < 1e-12 ? 1e-12 : (un[i][q][l] > 1 - 1e-12 ? 1 - 1e-12 : un[i][q][l]);
-                        const double p = wide[i][l] != 0 ? log(v) - log1p(-v) : cp[l] + H[q][l] * nrm[i][q][l];
+                        const double p = wide[i][l] != 0 ? log(v / (1 - v)) : cp[l] + H[q][l] * nrm[i][q][l];
                         X[a + i][q][l] = (double)(REAL)p;
                     }
                 }
             }
             /* the log densities, current minus proposed, plus the Jacobian's difference */
-            for (int64_t p = 0; p < 2 * a; p++)
-                lane_log_logistic(X[p], k, lg[p]);
+            for (int64_t p = 0; p < 2 * a; p++)        /* lg[p]: [0] the defensive density's log, [1] the Jacobian's */
+                lane_log_logistic(X[p], k, jac, lg[p][0], lg[p][1]);
             for (int64_t i = 0; i < a; i++) {
-                double out[2][W];
-                lane_logq(&K, X[i], lg[i], ex, out[0]);
-                lane_logq(&K, X[a + i], lg[a + i], ex, out[1]);
-                double dj[W];
+                double out[2][W], dj[W];
+                lane_logq(&K, X[i], lg[i][0], ex, out[0]);
+                lane_logq(&K, X[a + i], lg[a + i][0], ex, out[1]);
 #pragma omp simd
                 for (int l = 0; l < W; l++)
-                    dj[l] = 0;
-                for (int64_t q = 0; q < k; q++)
-                    if (jac[q])
-#pragma omp simd
-                        for (int l = 0; l < W; l++)
-                            dj[l] += lg[a + i][q][l] - lg[i][q][l];
+                    dj[l] = lg[a + i][1][l] - lg[i][1][l];
                 const int64_t row = g * a + i, nl = T - t0 < W ? T - t0 : W;
                 for (int l = 0; l < nl; l++) {
                     dlq[row * T + t0 + l] = out[0][l] - out[1][l] + dj[l];
@@ -421,21 +447,24 @@ int64_t bb_texel_accept(int64_t na, int64_t T, int64_t k, int64_t D, int64_t nth
                         uint64_t seed)
 {
     int64_t accepted = 0;
+    const int64_t TB = 512, nblk = (T + TB - 1) / TB;     /* texel blocks, movers inside: rows read in order */
 #pragma omp parallel for schedule(static) num_threads(nthreads) reduction(+ : accepted)
-    for (int64_t t = 0; t < T; t++) {
-        for (int64_t i = 0; i < na; i++) {
-            const double eprop = ep[i * T + t], ecur = e[A[i] * T + t];
-            if (!finite_bits(eprop))
-                continue;                               /* an impossible proposal */
-            if (!finite_bits(ecur)) {                   /* the current state impossible (+inf): any move is better; */
-                if (!is_plus_inf(ecur))                 /* -inf or NaN: refused, as torch's comparison does */
+    for (int64_t tb = 0; tb < nblk; tb++) {
+        const int64_t t1 = (tb + 1) * TB < T ? (tb + 1) * TB : T;
+        for (int64_t i = 0; i < na; i++)
+            for (int64_t t = tb * TB; t < t1; t++) {
+                const double eprop = ep[i * T + t], ecur = e[A[i] * T + t];
+                if (!finite_bits(eprop))
+                    continue;                               /* an impossible proposal */
+                if (!finite_bits(ecur)) {                   /* the current state impossible (+inf): any move is better; */
+                    if (!is_plus_inf(ecur))                 /* -inf or NaN: refused, as torch's comparison does */
+                        continue;
+                } else if (!(log(uniform01(seed, (uint64_t)(i * T + t), 0)) < ecur - eprop + dlq[i * T + t]))
                     continue;
-            } else if (!(log(uniform01(seed, (uint64_t)(i * T + t), 0)) < ecur - eprop + dlq[i * T + t]))
-                continue;
-            for (int64_t q = 0; q < k; q++)
-                z[A[i] * D + layout[t * k + q]] = zp[i * D + layout[t * k + q]];
-            accepted++;
-        }
+                for (int64_t q = 0; q < k; q++)
+                    z[A[i] * D + layout[t * k + q]] = zp[i * D + layout[t * k + q]];
+                accepted++;
+            }
     }
     return accepted;
 }
