@@ -205,7 +205,12 @@ class IntervalBijection:
         return _IntervalFn.apply(u, self.lo, self.hi)
 
     def __call__(self, u):
-        return torch.sigmoid(u) * (self.hi - self.lo) + self.lo
+        x = torch.sigmoid(u)
+        if self.lo == 0.0 and self.hi == 1.0:
+            return x                                  # x * 1 + 0: the same bits
+        if x.requires_grad:
+            return x * (self.hi - self.lo) + self.lo
+        return x.mul_(self.hi - self.lo).add_(self.lo)   # in place (a texel sweep's renders: no graph)
 
     @property
     def inv(self):

@@ -115,8 +115,8 @@ def _likelihood(model, data: ModelData, resid: Tensor, cens: Tensor | None, kapp
     the work on the sampler's path); ``cens`` the saturated pixels' terms (:func:`_censored_terms`, ``[n, K, 3]``, or
     ``[n, K]`` with ``channels=False``) or ``None``."""
     n, T = kappa.shape[0], model.resolution ** 2
-    resid = resid.reshape(n, T, 3)
-    out = (resid if channels else resid.sum(-1)).double().mul_(kappa.reshape(n, *[1] * (1 + channels)).double())
+    resid = resid.reshape(n, T, 3) if channels else resid.sum(-1).reshape(n, T)   # summed first: no [n, T, 3] copy
+    out = resid.double().mul_(kappa.reshape(n, *[1] * (1 + channels)).double())
     if cens is not None:
         idx = data.censored.gbuffer.texel.reshape(-1).to(out.device)
         out = out.index_add(1, idx, cens.to(out.dtype).neg())

@@ -93,6 +93,21 @@
         else { px0[j] += WG[j] * ABS(d0); px1[j] += WG[j] * ABS(d1); px2[j] += WG[j] * ABS(d2); } \
     }
 
+/* One light: a view's radiance and its loss per pixel and channel in one loop, in registers (PIXEL_LOOP's
+ * expressions on SPEC_LOOP's radiance) */
+#define ONE_LIGHT_PIXEL_LOOP(L2) \
+    _Pragma("omp simd") \
+    for (int64_t j = 0; j < m; j++) { \
+        const REAL rr = R[j], a = rr * rr, a2 = a * a, k = (REAL)0.5 * a, wj = W[j]; \
+        REAL s, sd = 0; \
+        BB_SPEC(rr, a, a2, k, NH2[j], NL[j], NV[j], s, sd, 0); \
+        const REAL d0 = BB_RADIANCE(A0[j], KD0[j], KS0[j], s, wj, kf) - Y0[j]; \
+        const REAL d1 = BB_RADIANCE(A1[j], KD1[j], KS1[j], s, wj, kf) - Y1[j]; \
+        const REAL d2 = BB_RADIANCE(A2[j], KD2[j], KS2[j], s, wj, kf) - Y2[j]; \
+        if (L2) { px0[j] += WG[j] * d0 * d0; px1[j] += WG[j] * d1 * d1; px2[j] += WG[j] * d2 * d2; } \
+        else { px0[j] += WG[j] * ABS(d0); px1[j] += WG[j] * ABS(d1); px2[j] += WG[j] * ABS(d2); } \
+    }
+
 /* The loss terms of a view from the radiance arrays o (several lights) */
 #define RESIDUAL_LOOP(L2) \
     _Pragma("omp simd") \
@@ -142,6 +157,13 @@ static inline void block(const struct args *restrict q, const int64_t i, const i
             const REAL *A0 = amp + v * 3 * P + p0, *A1 = A0 + P, *A2 = A0 + 2 * P;
             const REAL *Y0 = y + v * 3 * P + p0, *Y1 = Y0 + P, *Y2 = Y0 + 2 * P, *WG = wgt + v * P + p0;
             if (l2) { ONE_LIGHT_LOOP(1) } else { ONE_LIGHT_LOOP(0) }
+            continue;
+        }
+        if (mode == MODE_PIXEL_LOSS && L == 1) {      /* one light: radiance and per-pixel loss in one loop */
+            const REAL *NL = nl + v * P + p0, *NH2 = nh2 + v * P + p0, *W = w + v * P + p0;
+            const REAL *A0 = amp + v * 3 * P + p0, *A1 = A0 + P, *A2 = A0 + 2 * P;
+            const REAL *Y0 = y + v * 3 * P + p0, *Y1 = Y0 + P, *Y2 = Y0 + 2 * P, *WG = wgt + v * P + p0;
+            if (l2) { ONE_LIGHT_PIXEL_LOOP(1) } else { ONE_LIGHT_PIXEL_LOOP(0) }
             continue;
         }
         {  /* radiance of this view, and the specular terms the gradient pass reuses */

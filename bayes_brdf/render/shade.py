@@ -399,9 +399,10 @@ def shade_pixel_loss(maps: SVBRDF, g: GBuffer, target: Tensor, weight: Tensor | 
         n, g, chunks = _chunks(maps, g, eps, None)
         y = channels_first(target, dev, dt)
         wt = wt[:, None]
-        total = 0.0
+        total = None
         for s, e, args, _, _ in chunks:
-            total = total + fused.pixel_loss(*args, y[s:e], wt[s:e], ks_factor, kind == "l1")
+            part = fused.pixel_loss(*args, y[s:e], wt[s:e], ks_factor, kind == "l1")
+            total = part if total is None else total.add_(part)
         return total.expand(n, 3, h, w).permute(0, 2, 3, 1)
 
 
