@@ -22,6 +22,8 @@ Rows:
   single-particle gradients per step): the last column gives particle evaluations of ``U`` per step.
   emcee's stretch move refuses fewer walkers than twice the dimension unless told to "live
   dangerously", which this benchmark does (the cost of a step does not depend on it).
+* ``spos_stein``: the SPOS step without the preset's texel sweep (``texel_moves = 0``): one Stein update, what
+  ``pyro_svgd`` does per step (like with like).
 * ``spos_eager``: the same SPOS step on ``per_texel(..., backend="eager")`` (plain torch shading,
   autograd gradients): the naive baseline.
 * ``pyro_svgd``: Pyro's own ``SVGD(model, RBFSteinKernel(), Adam({"lr": 0.01}),
@@ -34,8 +36,8 @@ Each row is timed after ``--warmup`` untimed steps, one step at a time, ``--step
 ``--repeats`` repeats; the table gives the median and the mean wall-clock ms per step over all timed steps and, in
 parentheses, the median process CPU ms (all threads: the work, less sensitive to other processes). The two differ
 where some steps do more: the SPOS preset's texel sweep (every ``texel_moves`` steps, on models that offer texel
-energies) is in the mean, not in the median, and the mean is what a run pays per step (20 timed steps hold 7
-sweeps at the preset's every 3, one more than a third). A
+energies; every step since 2026-12-07, when both include it) is in the mean and, with a sweep less often than every
+other step, not in the median; the mean is what a run pays per step. A
 row stops early once it has used ``--max-seconds`` (after at least 2 timed steps, and one warm-up step when that
 alone took a third of the budget) so that slow rows
 (Pyro SVGD, the eager baseline, NUTS) keep the default run to a few minutes.
@@ -71,9 +73,9 @@ from bayes_brdf.samplers import make_sampler
 from bayes_brdf.memory import keep_freed_memory
 
 SAMPLERS = ("spos", "svgd", "sgld", "emcee", "multistart_sgd", "nuts")
-ROWS = ("potential", *SAMPLERS, "spos_eager", "pyro_svgd")
+ROWS = ("potential", *SAMPLERS, "spos_stein", "spos_eager", "pyro_svgd")
 LABELS = {"potential": "potential only (value_and_grad)", "spos_eager": "spos, eager backend (naive)",
-          "pyro_svgd": "pyro.infer.SVGD (reference)"}
+          "spos_stein": "spos without texel sweeps (texel_moves = 0)", "pyro_svgd": "pyro.infer.SVGD (reference)"}
 
 
 def make_data(res: int, views: int, material: str = "tiles", noise: float = 0.01, seed: int = 0) -> ModelData:
@@ -130,7 +132,7 @@ def _saturated(z: torch.Tensor, limit: float = 20.0) -> float:
 
 
 def sampler_row(name: str, model, data: ModelData, particles: int, timer: Timer, *, chain: bool = False,
-                seed: int = 0) -> dict:
+                seed: int = 0, params: dict | None = None) -> dict:
     """Timings of one of our samplers (or ``"potential"``: one ``value_and_grad``) on ``model``.
 
     ``chain=False`` times every step from the same state (the sampler's ``init`` on prior draws), so the
@@ -145,7 +147,7 @@ def sampler_row(name: str, model, data: ModelData, particles: int, timer: Timer,
         wall, cpu, k = timer(lambda: pot.value_and_grad(z0))
         return {"wall": wall, "cpu": cpu, "mean": timer.mean, "steps": k, "evals": (pot.evaluations - e0) / timer.calls,
                 "saturated": _saturated(z0)}
-    sampler, _ = make_sampler(name)
+    sampler, _ = make_sampler(name, params=params)
     rng = torch.Generator().manual_seed(seed)
     torch.manual_seed(seed)
     with warnings.catch_warnings():
@@ -226,6 +228,9 @@ def main(argv=None):
         for row in a.samplers:
             if row == "pyro_svgd":
                 out = pyro_svgd_row(per_texel(res, albedo="rgb"), data, a.particles, timer)
+            elif row == "spos_stein":
+                out = sampler_row("spos", per_texel(res, albedo="rgb"), data, a.particles, timer, chain=a.chain,
+                                  params={"texel_moves": 0})
             elif row == "spos_eager":
                 out = sampler_row("spos", per_texel(res, albedo="rgb", backend="eager"), data, a.particles, timer,
                                   chain=a.chain)
@@ -241,7 +246,7 @@ def main(argv=None):
     print()
     print("Median wall ms per step / mean wall ms per step (in parentheses: median process CPU ms, all threads). "
           "The mean counts the steps that do more than the others: SPOS's texel sweep, every texel_moves steps "
-          "of the preset, is in the mean and not in the median.")
+          "of the preset (every step: in both), is in the mean; spos_stein is the step without it.")
     print()
     print("| sampler | " + " | ".join(heads) + " | particle evals of U / step |")
     print("|---|" + "---|" * len(heads) + "---|")

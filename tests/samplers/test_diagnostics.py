@@ -118,12 +118,13 @@ def test_default_spos_diagnostics_pass_on_a_per_texel_truth_problem():
     assert d["converged"], d
     assert {"rhat", "ess", "energy_drift", "behind", "stein_ratio", "mean_shift", "std_change"} <= set(d["checks"])
     assert "ksd" not in d["checks"]
-    # 15 steps are too few (the albedo std 1.6x the exact one); the remedy, 30 steps, passes (measured: 1.0x)
-    with pytest.warns(ConvergenceWarning, match=r"not converged: .*rerun with steps=30"):
-        bb.infer(prob.model, obs, seed=0, steps=15, progress=False)
+    # with a texel sweep on every step 10 steps are too few (median albedo std 1.14x the exact one, std_change
+    # -0.32); the remedy, 20 steps, passes (measured: 1.01x)
+    with pytest.warns(ConvergenceWarning, match=r"not converged: .*rerun with steps=20"):
+        bb.infer(prob.model, obs, seed=0, steps=10, progress=False)
     with warnings.catch_warnings():
         warnings.simplefilter("error", ConvergenceWarning)
-        assert bb.infer(prob.model, obs, seed=0, steps=30, progress=False).diagnostics["converged"]
+        assert bb.infer(prob.model, obs, seed=0, steps=20, progress=False).diagnostics["converged"]
 
 
 def test_particle_methods_skip_rhat():

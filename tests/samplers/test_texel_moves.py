@@ -127,7 +127,8 @@ def test_default_fit_on_real_photos_finds_each_texels_exact_roughness(shared_dat
     narrow = truth["std"] <= truth["std"].median()
     std = {k: p.std("roughness").flatten().double() for k, p in runs.items()}
     exact = float(truth["std"][narrow].mean())
-    assert float(std["default"][narrow].mean()) < 2.5 * exact, (std["default"][narrow].mean(), exact)   # 1.7-1.8x
+    # measured 1.08x with the preset's sweep on every step (1.7-1.8x with one every 3 steps)
+    assert float(std["default"][narrow].mean()) < 1.3 * exact, (std["default"][narrow].mean(), exact)
     assert float(std["no moves"][narrow].mean()) > 4.0 * exact                                       # 6x
     mean = runs["default"].mean("roughness").flatten().double()
     assert float((mean - truth["mean"])[narrow].abs().mean()) < 0.02
@@ -137,12 +138,12 @@ def test_a_run_with_texel_moves_resumes_exactly_after_ctrl_c(small, tmp_path):
     from bayes_brdf.samplers import make_sampler, run
     _, pot = small
     smp, _ = make_sampler("spos")
-    assert smp.texel_moves == 3
+    assert smp.texel_moves == 1
     kw = dict(particles=8, steps=40, seed=2, progress=False, checkpoint_every=10)
     full = run(smp, pot, checkpoint=tmp_path / "full.pt", **kw)
 
     def stop(t, state, info):
-        if t == 22:                                   # after the sweeps of steps 2 to 20, before the next
+        if t == 22:                                   # after the sweeps of steps 0 to 21, before the next
             raise KeyboardInterrupt
     with pytest.raises(KeyboardInterrupt):
         run(smp, pot, checkpoint=tmp_path / "cut.pt", callbacks=[stop], **kw)
