@@ -7,7 +7,8 @@ Usage:
 The case of ``bench_samplers.py`` (``make_data``: rectified collocated views of "tiles", ``per_texel(R,
 albedo="rgb")``). Rows, median ms over ``--repeats`` calls each:
 
-* ``step``: one ``SPOS.step`` (the default sampler's preset), everything included;
+* ``step``: one ``SPOS.step`` of the default sampler's preset without its texel sweep (``texel_moves = 0``): the
+  Stein update, everything included;
 * ``value_and_grad``: the potential's energies and gradients (the model run under Pyro, the bijections, the
   likelihood and its backward);
 * ``shading kernel``: the fused native shading + L1 loss and its gradient alone (``shade_loss`` on the same
@@ -19,8 +20,8 @@ albedo="rgb")``). Rows, median ms over ``--repeats`` calls each:
 * ``update``: the fused SPOS update (``_native_spos.c``) or, with ``BAYES_BRDF_NO_NATIVE=1``, the torch one;
 * ``rest of the step`` = step - the others (Python, the annealing schedule, small tensors);
 * ``texel sweep``: the preset's texel-local Metropolis sweep (``texel_moves.texel_move``), which runs every
-  ``texel_moves`` steps on models that offer texel energies and is not in ``step``; the last line gives the mean
-  step with it.
+  ``texel_moves`` steps (every step since 2026-12-07) on models that offer texel energies and is not in ``step``;
+  the last line gives the mean step with it.
 
 The bound: one pixel evaluation forward and backward is about 62 flops (docs/performance.md), so a
 value_and_grad is ``62 * n * V * R^2`` flops; the last line divides it by the step's time.
@@ -29,6 +30,7 @@ from __future__ import annotations
 
 import argparse
 import os
+from dataclasses import replace
 import statistics
 import time
 
@@ -68,14 +70,13 @@ def main(argv=None):
     model = per_texel(a.res, albedo="rgb")
     pot = Potential(model, (data,))
     z = pot.init(a.particles, seed=0)
-    sampler, _ = make_sampler("spos")
+    preset, _ = make_sampler("spos")
+    sampler = replace(preset, texel_moves=0)           # the Stein update alone; the sweep is its own row
     rng = torch.Generator().manual_seed(0)
     state = sampler.init(z, pot, rng, steps=2000)
     vals = pot.to_constrained(z)
     maps = model.maps({k: v.detach() for k, v in vals.items()})
     from bayes_brdf.render.shade import shade_loss
-
-    from dataclasses import replace
 
     def kernel_only():       # the albedo and roughness as leaves: the kernel's forward and its gradient
         m = replace(maps, albedo=maps.albedo.detach().requires_grad_(True),
@@ -103,7 +104,7 @@ def main(argv=None):
             int(sampler.step_units == "spread"), 1.0, sampler.beta_for(D), sampler.eps_for(D), sampler.adam_beta2,
             0.5, 0.5, sampler.step_size, sampler.min_spread]
         rows["update"] = med(lambda: S._native_update(z.dtype)(*args), a.repeats)
-    every = getattr(sampler, "texel_moves", 0)
+    every = getattr(preset, "texel_moves", 0)
     if every and texel_layout(pot) is not None:     # the preset's texel sweep, every `every` steps (not in "step")
         rows["texel sweep"] = med(lambda: texel_move(z, pot, rng), max(3, a.repeats // 3))
     rows["rest of the potential"] = rows["value_and_grad"] - rows["shading kernel"]
