@@ -66,7 +66,8 @@ def run(a) -> int:
         res = DEFAULTS["capture_resolution"]
         settings["capture"] = observations_digest(load_capture(a.capture, resolution=res))   # fails now if bad
     from .. import __version__
-    claim(a.out, {"demo": settings, "version": __version__},
+    from ..runs.fingerprint import sampler_identity
+    claim(a.out, {"demo": settings, "sampler": sampler_identity("spos"), "version": __version__},
           f"a demo of {a.material} ({a.resolution} px, seed {a.seed})", overwrite=a.overwrite, owned=OWNED)
     path = demo(a.out, material=a.material, resolution=a.resolution, views=a.views, steps=a.steps, rounds=a.rounds,
                 k=a.k, seed=a.seed, seeds=a.seeds, capture=a.capture, mesh=a.mesh, mesh_up=a.mesh_up,

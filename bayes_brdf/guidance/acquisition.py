@@ -189,7 +189,9 @@ def guided_acquisition(model: "Callable | str", initial: Observations, candidate
     obs, used, z, res = initial, [int(i) for i in initial_indices], None, AcquisitionResult()
     surface = initial.surface
     from ..identity import differences, fingerprint, model_description, observations_digest, views_digest
-    setup = {"model": model if isinstance(model, str) else model_description(model), "sampler": str(sampler),
+    from ..runs.fingerprint import sampler_identity
+    setup = {"model": model if isinstance(model, str) else model_description(model),
+             "sampler": sampler_identity(sampler),
              "particles": particles, "steps": steps, "params": params, "method": method, "k": ks, "radius": radius,
              "warm_start": warm_start, "map_steps": map_steps, "score": score_kw,
              "candidates": views_digest(candidates)}

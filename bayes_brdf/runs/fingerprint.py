@@ -15,6 +15,8 @@ Example:
 """
 from __future__ import annotations
 
+from pathlib import Path
+
 
 def model_table(model: str, overrides: dict, resolution: int) -> dict:
     """The model preset ``model`` (a name or a TOML path) with ``overrides`` applied: what a run samples
@@ -35,6 +37,24 @@ def model_table(model: str, overrides: dict, resolution: int) -> dict:
     return table
 
 
+def sampler_identity(sampler) -> "dict | str":
+    """What a fingerprint records of a sampler spec: a preset name or TOML path (``None``: ``spos``) as its whole
+    table, so that a preset edited between two runs makes them two runs; a table as given; a sampler object as its
+    repr (its class and every hyper-parameter).
+
+    Example:
+        >>> sampler_identity("spos")["params"]["texel_bandwidth"]
+        2.5
+    """
+    from ..presets import load_preset
+
+    if sampler is None or isinstance(sampler, (str, Path)):
+        return dict(load_preset("samplers", sampler or "spos"))
+    if isinstance(sampler, dict):
+        return dict(sampler)
+    return repr(sampler)
+
+
 def run_fingerprint(data: str, *, model: dict, sampler: str | None, params: dict, particles: int | None,
                     steps: "int | str | None", seed: int, views: list[int] | None, resolution: list[int],
                     start: dict | None = None) -> dict:
@@ -42,9 +62,8 @@ def run_fingerprint(data: str, *, model: dict, sampler: str | None, params: dict
     the sampler preset (``None``: ``spos``) with its ``params`` overrides, ``particles`` and ``steps``
     (``None``: the preset's), the seed, the fitted ``views`` (``None``: all) and the photos' resolution."""
     from ..identity import fingerprint
-    from ..presets import load_preset
 
-    preset = dict(load_preset("samplers", sampler or "spos"))
+    preset = sampler_identity(sampler)
     extra = {} if start is None else {"start": start}
     return fingerprint(data=data, model=model, seed=seed, views=views, resolution=list(resolution),
                        sampler={"preset": preset, "params": dict(params), "particles": particles, "steps": steps},

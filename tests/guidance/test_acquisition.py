@@ -126,6 +126,17 @@ def test_two_rounds_write_files_grow_views_and_resume(tmp_path, monkeypatch):
     for kw, word in (({"steps": 41}, "steps"), ({"method": "sobol"}, "method")):
         with pytest.raises(InputError, match=f"holds round 0 of another acquisition run.*{word}"):
             _run(tmp_path, **kw)
+    # so is one whose sampler preset was edited since (the same name, another table: the preset's texel sweep
+    # went from every 3 steps to every step on 2026-12-07, and a rerun must not replay the old rounds)
+    import bayes_brdf.presets as presets
+    real_load = presets.load_preset
+    edited = lambda kind, name: ({**real_load(kind, name), "params": {**real_load(kind, name)["params"],  # noqa: E731
+                                                                      "texel_moves": 3}}
+                                 if kind == "samplers" else real_load(kind, name))
+    monkeypatch.setattr(presets, "load_preset", edited)
+    with pytest.raises(InputError, match="holds round 0 of another acquisition run.*sampler.params.texel_moves"):
+        _run(tmp_path)
+    monkeypatch.undo()
 
     # a run interrupted before its last round: only that round is fitted again
     import shutil
