@@ -1,6 +1,7 @@
 /* The proposal densities of the texel-local move (texel_moves.py); compiled on first use by render/native.py.
- * Every entry point runs eight texels at a time, one per SIMD lane, through the same lane_widths and lane_logq. The same arithmetic as texel_moves._local_scale and texel_moves._log_q (the torch reference,
- * which runs where this does not: CUDA, no compiler), in double inside, without the [T, a, b] temporaries.
+ * Every entry point runs eight texels at a time, one per SIMD lane (lane_blocks), through the same lane_widths
+ * and lane_logq: the arithmetic of texel_moves._local_scale and texel_moves._log_q (the torch reference, which
+ * runs where this does not: CUDA, no compiler), in double inside, without the [T, a, b] temporaries.
  *
  * Per texel t of group g (inputs texel-major and contiguous: each texel's particles are adjacent):
  *   c [G, T, b, k]  the other half's values (the kernel density's centres)
@@ -223,6 +224,49 @@ static void gather_centres(const REAL *c, int64_t g, int64_t T, int64_t b, int64
                 C[j][q][l] = (double)c[((g * T + tl[l]) * b + j) * k + q];
 }
 
+/* One block of W texels of group g: t0 its first, tl its lanes' texels (lane_texels), nl of them real; buf the
+ * thread's scratch; args the entry point's own */
+typedef void (*LaneBlock)(const void *args, Lane *buf, int64_t g, int64_t t0, int64_t nl, const int64_t tl[W]);
+
+/* body over every group g < G and block of W of the T texels, in parallel over the blocks (OpenMP, static), each
+ * thread with `scratch` bytes of its own; 0 on success, 1 when a thread's scratch could not be allocated */
+static int lane_blocks(int64_t G, int64_t T, int64_t nthreads, size_t scratch, LaneBlock body, const void *args)
+{
+    const int64_t nblk = (T + W - 1) / W;
+    int failed = 0;
+#pragma omp parallel num_threads(nthreads) reduction(| : failed)
+    {
+        Lane *buf = malloc(scratch);
+        failed = !buf;
+#pragma omp for schedule(static)
+        for (int64_t gb = 0; gb < G * nblk; gb++) {
+            if (!buf)
+                continue;
+            const int64_t g = gb / nblk, t0 = (gb % nblk) * W;
+            int64_t tl[W];
+            lane_texels(t0, T, tl);
+            body(args, buf, g, t0, T - t0 < W ? T - t0 : W, tl);
+        }
+        free(buf);
+    }
+    return failed;
+}
+
+typedef struct { int64_t T, b, k; const REAL *c; double bw, hmin; REAL *h; } ScaleArgs;
+
+/* scratch: the centres, their distances [b] and the nearest distances [b][W] */
+static void scale_block(const void *args, Lane *buf, int64_t g, int64_t t0, int64_t nl, const int64_t tl[W])
+{
+    const ScaleArgs *q = args;
+    const int64_t T = q->T, b = q->b, k = q->k;
+    double H[KMAX][W];
+    gather_centres(q->c, g, T, b, k, tl, buf);
+    lane_widths(buf, b, k, q->bw, q->hmin, buf + b, (double (*)[W])(buf + 2 * b), H);
+    for (int l = 0; l < nl; l++)
+        for (int64_t c = 0; c < k; c++)
+            q->h[(g * T + t0 + l) * k + c] = (REAL)H[c][l];
+}
+
 /* h [G, T, k] from the centres c [G, T, b, k]; 0 on success, 1 when k or b exceed the kernel's bounds (the caller
  * then uses the torch reference) or out of memory */
 int bb_texel_scale(int64_t G, int64_t T, int64_t b, int64_t k, int64_t nthreads, const REAL *c, double bw,
@@ -230,29 +274,33 @@ int bb_texel_scale(int64_t G, int64_t T, int64_t b, int64_t k, int64_t nthreads,
 {
     if (k > KMAX || b > BMAX || b < 2)
         return 1;
-    const int64_t nblk = (T + W - 1) / W;
-    int failed = 0;
-#pragma omp parallel num_threads(nthreads) reduction(| : failed)
-    {
-        Lane *buf = malloc(2 * b * sizeof(Lane) + b * sizeof(double[W]));   /* centres, distances, nearest */
-        failed = !buf;
-#pragma omp for schedule(static)
-        for (int64_t gb = 0; gb < G * nblk; gb++) {
-            if (!buf)
-                continue;
-            const int64_t g = gb / nblk, t0 = (gb % nblk) * W, nl = T - t0 < W ? T - t0 : W;
-            int64_t tl[W];
-            double H[KMAX][W];
-            lane_texels(t0, T, tl);
-            gather_centres(c, g, T, b, k, tl, buf);
-            lane_widths(buf, b, k, bw, hmin, buf + b, (double (*)[W])(buf + 2 * b), H);
-            for (int l = 0; l < nl; l++)
-                for (int64_t q = 0; q < k; q++)
-                    h[(g * T + t0 + l) * k + q] = (REAL)H[q][l];
-        }
-        free(buf);
+    const ScaleArgs args = {T, b, k, c, bw, hmin, h};
+    return lane_blocks(G, T, nthreads, 2 * b * sizeof(Lane) + b * sizeof(double[W]), scale_block, &args);
+}
+
+typedef struct { int64_t T, a, b, k; const REAL *c, *x, *h; double defensive; REAL *logq; } LogqArgs;
+
+/* scratch: the centres, their scaled copies [b] and the kernel's exponents [b][W] */
+static void logq_block(const void *args, Lane *buf, int64_t g, int64_t t0, int64_t nl, const int64_t tl[W])
+{
+    const LogqArgs *q = args;
+    const int64_t T = q->T, a = q->a, b = q->b, k = q->k;
+    double H[KMAX][W], X[KMAX][W], ll[W], out[W];
+    LaneKde K;
+    gather_centres(q->c, g, T, b, k, tl, buf);
+    for (int64_t c = 0; c < k; c++)
+        for (int l = 0; l < W; l++)
+            H[c][l] = (double)q->h[(g * T + tl[l]) * k + c];
+    lane_kde_init(&K, buf, H, b, k, q->defensive, buf + b);
+    for (int64_t p = 0; p < a; p++) {
+        for (int64_t c = 0; c < k; c++)
+            for (int l = 0; l < W; l++)
+                X[c][l] = (double)q->x[((g * T + tl[l]) * a + p) * k + c];
+        lane_log_logistic(X, k, NULL, ll, NULL);
+        lane_logq(&K, X, ll, (double (*)[W])(buf + 2 * b), out);
+        for (int l = 0; l < nl; l++)
+            q->logq[(g * T + t0 + l) * a + p] = (REAL)out[l];
     }
-    return failed;
 }
 
 /* logq [G, T, a] at x [G, T, a, k] for the centres c [G, T, b, k] and widths h [G, T, k]; 0 on success, 1 when k or
@@ -262,39 +310,8 @@ int bb_texel_logq(int64_t G, int64_t T, int64_t a, int64_t b, int64_t k, int64_t
 {
     if (k > KMAX || b > BMAX)
         return 1;
-    const int64_t nblk = (T + W - 1) / W;
-    int failed = 0;
-#pragma omp parallel num_threads(nthreads) reduction(| : failed)
-    {
-        Lane *buf = malloc(2 * b * sizeof(Lane) + b * sizeof(double[W]));   /* centres, scaled centres, exponents */
-        failed = !buf;
-#pragma omp for schedule(static)
-        for (int64_t gb = 0; gb < G * nblk; gb++) {
-            if (!buf)
-                continue;
-            const int64_t g = gb / nblk, t0 = (gb % nblk) * W, nl = T - t0 < W ? T - t0 : W;
-            int64_t tl[W];
-            double H[KMAX][W], X[KMAX][W], ll[W], out[W];
-            LaneKde K;
-            lane_texels(t0, T, tl);
-            gather_centres(c, g, T, b, k, tl, buf);
-            for (int64_t q = 0; q < k; q++)
-                for (int l = 0; l < W; l++)
-                    H[q][l] = (double)h[(g * T + tl[l]) * k + q];
-            lane_kde_init(&K, buf, H, b, k, defensive, buf + b);
-            for (int64_t p = 0; p < a; p++) {
-                for (int64_t q = 0; q < k; q++)
-                    for (int l = 0; l < W; l++)
-                        X[q][l] = (double)x[((g * T + tl[l]) * a + p) * k + q];
-                lane_log_logistic(X, k, NULL, ll, NULL);
-                lane_logq(&K, X, ll, (double (*)[W])(buf + 2 * b), out);
-                for (int l = 0; l < nl; l++)
-                    logq[(g * T + t0 + l) * a + p] = (REAL)out[l];
-            }
-        }
-        free(buf);
-    }
-    return failed;
+    const LogqArgs args = {T, a, b, k, c, x, h, defensive, logq};
+    return lane_blocks(G, T, nthreads, 2 * b * sizeof(Lane) + b * sizeof(double[W]), logq_block, &args);
 }
 
 /* ---------------------------------------------------------------------------------------------- the whole move */
@@ -310,6 +327,106 @@ static inline double uniform01(uint64_t seed, uint64_t stream, uint64_t idx)
     return ((double)(x >> 11) + 0.5) * 0x1.0p-53;
 }
 
+typedef struct {
+    int64_t T, a, b, k, D, ke;
+    const REAL *z; const int64_t *layout, *jac, *A, *B;
+    uint64_t seed; double bw, hmin, defensive;
+    REAL *zp; double *dlq;
+} ProposeArgs;
+
+/* scratch: the centres, their scaled copies and their nearest-neighbour distances [b], the uniforms and normals [a],
+ * the points and their log-logistic terms [2 a]; and the kernel's exponents [b][W] */
+static void propose_block(const void *args, Lane *buf, int64_t g, int64_t t0, int64_t nl, const int64_t tl[W])
+{
+    const ProposeArgs *pa = args;
+    const int64_t T = pa->T, a = pa->a, b = pa->b, k = pa->k, D = pa->D, ke = pa->ke;
+    const REAL *z = pa->z;
+    const int64_t *layout = pa->layout, *jac = pa->jac, *A = pa->A, *B = pa->B;
+    const uint64_t seed = pa->seed;
+    const double bw = pa->bw, hmin = pa->hmin, defensive = pa->defensive, two_pi = 2 * M_PI;
+    REAL *zp = pa->zp;
+    double *dlq = pa->dlq;
+    Lane *C = buf, *cs = C + b, *dist = cs + b, *un = dist + b, *nrm = un + a, *X = nrm + a, *lg = X + 2 * a;
+    double (*ex)[W] = (double (*)[W])(lg + 2 * a);
+    int64_t pick[BMAX][W];
+    double wide[BMAX][W], H[KMAX][W];
+    LaneKde K;
+    for (int64_t j = 0; j < b; j++) {
+        const REAL *zr = z + B[g * b + j] * D;
+        for (int64_t q = 0; q < k; q++)
+            for (int l = 0; l < W; l++)
+                C[j][q][l] = (double)zr[layout[tl[l] * k + q]];
+    }
+    lane_widths(C, b, k, bw, hmin, dist, ex, H);       /* ex: scratch until the densities */
+    lane_kde_init(&K, C, H, b, k, defensive, cs);
+    /* the draws: 0 picks the defensive logistic, 1 the centre, 2.. the coordinates (pairs for Box-Muller) */
+    for (int64_t i = 0; i < a; i++) {
+        const uint64_t s0 = (uint64_t)((g * a + i) * T + t0);    /* lane l's stream: s0 + l */
+#pragma omp simd
+        for (int l = 0; l < W; l++)
+            wide[i][l] = uniform01(seed, s0 + (uint64_t)l, 0) < defensive;
+#pragma omp simd
+        for (int l = 0; l < W; l++) {
+            const int64_t pk = (int64_t)(uniform01(seed, s0 + (uint64_t)l, 1) * b);
+            pick[i][l] = pk < b ? pk : b - 1;
+        }
+        for (int64_t q = 0; q < ke; q++)
+#pragma omp simd
+            for (int l = 0; l < W; l++)
+                un[i][q][l] = uniform01(seed, s0 + (uint64_t)l, 2 + q);
+    }
+    /* Box-Muller; the cosines and sines in loops of their own, or the compiler fuses them into a scalar
+     * sincos call */
+    for (int64_t i = 0; i < a; i++)
+        for (int64_t q = 0; q < ke; q += 2) {
+            double r[W];
+#pragma omp simd
+            for (int l = 0; l < W; l++)
+                r[l] = sqrt(-2 * log(un[i][q][l]));
+#pragma omp simd
+            for (int l = 0; l < W; l++)
+                nrm[i][q][l] = r[l] * cos(two_pi * un[i][q + 1][l]);
+#pragma omp simd
+            for (int l = 0; l < W; l++)
+                nrm[i][q + 1][l] = r[l] * sin(two_pi * un[i][q + 1][l]);
+        }
+    /* the points: the movers' current values (X[0..a)) and their proposals (X[a..2a)), rounded as the
+     * particles are, scored as they will be */
+    for (int64_t i = 0; i < a; i++) {
+        const REAL *zr = z + A[g * a + i] * D;
+        for (int64_t q = 0; q < k; q++) {
+            for (int l = 0; l < W; l++)
+                X[i][q][l] = (double)zr[layout[tl[l] * k + q]];
+            double cp[W];
+            for (int l = 0; l < W; l++)
+                cp[l] = C[pick[i][l]][q][l];
+#pragma omp simd
+            for (int l = 0; l < W; l++) {
+                const double v = un[i][q][l] < 1e-12 ? 1e-12 : (un[i][q][l] > 1 - 1e-12 ? 1 - 1e-12 : un[i][q][l]);
+                const double p = wide[i][l] != 0 ? log(v / (1 - v)) : cp[l] + H[q][l] * nrm[i][q][l];
+                X[a + i][q][l] = (double)(REAL)p;
+            }
+        }
+    }
+    /* the log densities, current minus proposed, plus the Jacobian's difference */
+    for (int64_t p = 0; p < 2 * a; p++)        /* lg[p]: [0] the defensive density's log, [1] the Jacobian's */
+        lane_log_logistic(X[p], k, jac, lg[p][0], lg[p][1]);
+    for (int64_t i = 0; i < a; i++) {
+        double out[2][W], dj[W];
+        lane_logq(&K, X[i], lg[i][0], ex, out[0]);
+        lane_logq(&K, X[a + i], lg[a + i][0], ex, out[1]);
+#pragma omp simd
+        for (int l = 0; l < W; l++)
+            dj[l] = lg[a + i][1][l] - lg[i][1][l];
+        const int64_t row = g * a + i;
+        for (int l = 0; l < nl; l++) {
+            dlq[row * T + t0 + l] = out[0][l] - out[1][l] + dj[l];
+            for (int64_t q = 0; q < k; q++)
+                zp[row * D + layout[(t0 + l) * k + q]] = (REAL)X[a + i][q][l];
+        }
+    }
+}
+
 /* For every mover i (rows A [G a] of z [N, D], the group g = i / a) and texel t (its coordinates layout [T, k]):
  * the proposal (a random centre of the other half, rows B [G, b], plus N(0, h^2) jitter, or with probability
  * `defensive` a standard logistic draw in every coordinate) written to zp [G a, D] at the texel's columns, and
@@ -323,105 +440,8 @@ int bb_texel_propose(int64_t G, int64_t T, int64_t a, int64_t b, int64_t k, int6
 {
     if (k > KMAX || b > BMAX || a > BMAX || b < 2)     /* a mover's draws: 2 + k <= 10 of its stream's 64 */
         return 1;
-    const int64_t nblk = (T + W - 1) / W, ke = k + (k & 1);
-    const double two_pi = 2 * M_PI;
-    /* per thread: the centres, their scaled copies and their nearest-neighbour distances [b], the uniforms and
-     * normals [a], the points and their log-logistic terms [2 a]; and the kernel's exponents [b][W] */
-    const size_t per = (3 * b + 6 * a) * sizeof(Lane) + b * sizeof(double[W]);
-    int failed = 0;
-#pragma omp parallel num_threads(nthreads) reduction(| : failed)
-    {
-        Lane *buf = malloc(per);
-        failed = !buf;
-#pragma omp for schedule(static)
-        for (int64_t gb = 0; gb < G * nblk; gb++) {
-            if (!buf)
-                continue;
-            Lane *C = buf, *cs = C + b, *dist = cs + b, *un = dist + b, *nrm = un + a, *X = nrm + a, *lg = X + 2 * a;
-            double (*ex)[W] = (double (*)[W])(lg + 2 * a);
-            const int64_t g = gb / nblk, t0 = (gb % nblk) * W;
-            int64_t tl[W], pick[BMAX][W];
-            double wide[BMAX][W], H[KMAX][W];
-            LaneKde K;
-            lane_texels(t0, T, tl);
-            for (int64_t j = 0; j < b; j++) {
-                const REAL *zr = z + B[g * b + j] * D;
-                for (int64_t q = 0; q < k; q++)
-                    for (int l = 0; l < W; l++)
-                        C[j][q][l] = (double)zr[layout[tl[l] * k + q]];
-            }
-            lane_widths(C, b, k, bw, hmin, dist, ex, H);       /* ex: scratch until the densities */
-            lane_kde_init(&K, C, H, b, k, defensive, cs);
-            /* the draws: 0 picks the defensive logistic, 1 the centre, 2.. the coordinates (pairs for Box-Muller) */
-            for (int64_t i = 0; i < a; i++) {
-                const uint64_t s0 = (uint64_t)((g * a + i) * T + t0);    /* lane l's stream: s0 + l */
-#pragma omp simd
-                for (int l = 0; l < W; l++)
-                    wide[i][l] = uniform01(seed, s0 + (uint64_t)l, 0) < defensive;
-#pragma omp simd
-                for (int l = 0; l < W; l++) {
-                    const int64_t pk = (int64_t)(uniform01(seed, s0 + (uint64_t)l, 1) * b);
-                    pick[i][l] = pk < b ? pk : b - 1;
-                }
-                for (int64_t q = 0; q < ke; q++)
-#pragma omp simd
-                    for (int l = 0; l < W; l++)
-                        un[i][q][l] = uniform01(seed, s0 + (uint64_t)l, 2 + q);
-            }
-            /* Box-Muller; the cosines and sines in loops of their own, or the compiler fuses them into a scalar
-             * sincos call */
-            for (int64_t i = 0; i < a; i++)
-                for (int64_t q = 0; q < ke; q += 2) {
-                    double r[W];
-#pragma omp simd
-                    for (int l = 0; l < W; l++)
-                        r[l] = sqrt(-2 * log(un[i][q][l]));
-#pragma omp simd
-                    for (int l = 0; l < W; l++)
-                        nrm[i][q][l] = r[l] * cos(two_pi * un[i][q + 1][l]);
-#pragma omp simd
-                    for (int l = 0; l < W; l++)
-                        nrm[i][q + 1][l] = r[l] * sin(two_pi * un[i][q + 1][l]);
-                }
-            /* the points: the movers' current values (X[0..a)) and their proposals (X[a..2a)), rounded as the
-             * particles are, scored as they will be */
-            for (int64_t i = 0; i < a; i++) {
-                const REAL *zr = z + A[g * a + i] * D;
-                for (int64_t q = 0; q < k; q++) {
-                    for (int l = 0; l < W; l++)
-                        X[i][q][l] = (double)zr[layout[tl[l] * k + q]];
-                    double cp[W];
-                    for (int l = 0; l < W; l++)
-                        cp[l] = C[pick[i][l]][q][l];
-#pragma omp simd
-                    for (int l = 0; l < W; l++) {
-                        const double v = un[i][q][l] < 1e-12 ? 1e-12 : (un[i][q][l] > 1 - 1e-12 ? 1 - 1e-12 : un[i][q][l]);
-                        const double p = wide[i][l] != 0 ? log(v / (1 - v)) : cp[l] + H[q][l] * nrm[i][q][l];
-                        X[a + i][q][l] = (double)(REAL)p;
-                    }
-                }
-            }
-            /* the log densities, current minus proposed, plus the Jacobian's difference */
-            for (int64_t p = 0; p < 2 * a; p++)        /* lg[p]: [0] the defensive density's log, [1] the Jacobian's */
-                lane_log_logistic(X[p], k, jac, lg[p][0], lg[p][1]);
-            for (int64_t i = 0; i < a; i++) {
-                double out[2][W], dj[W];
-                lane_logq(&K, X[i], lg[i][0], ex, out[0]);
-                lane_logq(&K, X[a + i], lg[a + i][0], ex, out[1]);
-#pragma omp simd
-                for (int l = 0; l < W; l++)
-                    dj[l] = lg[a + i][1][l] - lg[i][1][l];
-                const int64_t row = g * a + i, nl = T - t0 < W ? T - t0 : W;
-                for (int l = 0; l < nl; l++) {
-                    dlq[row * T + t0 + l] = out[0][l] - out[1][l] + dj[l];
-                    for (int64_t q = 0; q < k; q++)
-                        zp[row * D + layout[(t0 + l) * k + q]] = (REAL)X[a + i][q][l];
-                }
-            }
-        }
-        free(buf);
-    }
-    return failed;
+    const ProposeArgs args = {T, a, b, k, D, k + (k & 1), z, layout, jac, A, B, seed, bw, hmin, defensive, zp, dlq};
+    return lane_blocks(G, T, nthreads, (3 * b + 6 * a) * sizeof(Lane) + b * sizeof(double[W]), propose_block, &args);
 }
 
 /* Whether x is finite, from its bits: -ffast-math lets the compiler assume isfinite() and NaN comparisons away */
