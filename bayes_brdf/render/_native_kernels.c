@@ -84,13 +84,18 @@
         ar[j] += gF * sd; \
     }
 
-/* A view's loss per pixel and channel from the radiance arrays o, added into p0..p2 */
+/* Pixel j's weighted loss per channel from its residuals d = R - y, added into px0..px2 */
+#define PIXEL_TERMS(L2, j, d0, d1, d2) do { \
+        if (L2) { px0[j] += WG[j] * (d0) * (d0); px1[j] += WG[j] * (d1) * (d1); px2[j] += WG[j] * (d2) * (d2); } \
+        else { px0[j] += WG[j] * ABS(d0); px1[j] += WG[j] * ABS(d1); px2[j] += WG[j] * ABS(d2); } \
+    } while (0)
+
+/* A view's loss per pixel and channel from the radiance arrays o, added into px0..px2 */
 #define PIXEL_LOOP(L2) \
     _Pragma("omp simd") \
     for (int64_t j = 0; j < m; j++) { \
         const REAL d0 = o0[j] - Y0[j], d1 = o1[j] - Y1[j], d2 = o2[j] - Y2[j]; \
-        if (L2) { px0[j] += WG[j] * d0 * d0; px1[j] += WG[j] * d1 * d1; px2[j] += WG[j] * d2 * d2; } \
-        else { px0[j] += WG[j] * ABS(d0); px1[j] += WG[j] * ABS(d1); px2[j] += WG[j] * ABS(d2); } \
+        PIXEL_TERMS(L2, j, d0, d1, d2); \
     }
 
 /* One light: a view's radiance and its loss per pixel and channel in one loop, in registers (PIXEL_LOOP's
@@ -104,8 +109,7 @@
         const REAL d0 = BB_RADIANCE(A0[j], KD0[j], KS0[j], s, wj, kf) - Y0[j]; \
         const REAL d1 = BB_RADIANCE(A1[j], KD1[j], KS1[j], s, wj, kf) - Y1[j]; \
         const REAL d2 = BB_RADIANCE(A2[j], KD2[j], KS2[j], s, wj, kf) - Y2[j]; \
-        if (L2) { px0[j] += WG[j] * d0 * d0; px1[j] += WG[j] * d1 * d1; px2[j] += WG[j] * d2 * d2; } \
-        else { px0[j] += WG[j] * ABS(d0); px1[j] += WG[j] * ABS(d1); px2[j] += WG[j] * ABS(d2); } \
+        PIXEL_TERMS(L2, j, d0, d1, d2); \
     }
 
 /* The loss terms of a view from the radiance arrays o (several lights) */
