@@ -15,7 +15,7 @@ latent dimension) and the same pixels. Both rows: ``Potential.value_and_grad`` (
 gradients of all particles) and one ``spos`` step without the preset's texel sweep (``texel_moves = 0``: the plane
 would sweep, the mesh cannot), median ms over repeats after warm-up, the two rows
 timed in turn in each round; the ratio (the median over rounds of mesh / plane) is the number the issue
-bounds (at most 1.5).
+bounds (at most 1.2; 1.5 is the environment light's bound, bench_env_step.py).
 """
 from __future__ import annotations
 

@@ -30,9 +30,9 @@ from __future__ import annotations
 
 import argparse
 import os
-from dataclasses import replace
 import statistics
 import time
+from dataclasses import replace
 
 import torch
 
