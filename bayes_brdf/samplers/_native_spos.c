@@ -17,11 +17,157 @@
 #include <omp.h>
 #include <stdint.h>
 
-#define B 32     /* coordinates per block: a few SIMD vectors */
+#define B 256    /* coordinates per block: 1 KB of each particle's row per array (fewer, longer streams; measured 1.6x faster than 32 on AVX2) */
 #define NMAX 64  /* particles per group (the caller checks) */
 #define IT 4     /* particles i per pass of the kernel sums */
+#if defined(__AVX512F__)
+#define V (64 / (int)sizeof(REAL))   /* coordinates per SIMD vector */
+#else
+#define V (32 / (int)sizeof(REAL))
+#endif
 
 static const REAL zrow[NMAX] = {0};   /* a kernel row of zeros: the padding of the last pass */
+
+/* the update's arguments and derived constants, shared by every block */
+typedef struct {
+    int64_t n, D, adam, per_particle, noise_pc, spread;
+    const REAL *z, *g, *xi, *K, *ks, *c2h, *v, *vn;
+    REAL *zo, *vo, *vno;
+    REAL rg, ibeta, gb, in, reps, rb2, r1b2, ibc, ibcn, rstep, rfloor, ff;
+} upd;
+
+/* one block of B coordinates of group q: m (<= B) of them are real; inlined twice, with m = B (the loops then
+ * have constant bounds and vectorise) and with the last block's remainder */
+static inline __attribute__((always_inline)) void block(const upd *restrict a, const int64_t q, const int64_t k,
+                                                         const int64_t m)
+{
+    const int64_t n = a->n, D = a->D, adam = a->adam, per_particle = a->per_particle, noise_pc = a->noise_pc,
+                  spread = a->spread, d0 = k * B;
+    const REAL *restrict z = a->z, *restrict g = a->g, *restrict xi = a->xi, *restrict K = a->K,
+               *restrict ks = a->ks, *restrict c2h = a->c2h, *restrict v = a->v, *restrict vn = a->vn;
+    REAL *restrict zo = a->zo, *restrict vo = a->vo, *restrict vno = a->vno;
+    const REAL rg = a->rg, ibeta = a->ibeta, gb = a->gb, in = a->in, reps = a->reps, rb2 = a->rb2, r1b2 = a->r1b2,
+               ibc = a->ibc, ibcn = a->ibcn, rstep = a->rstep, rfloor = a->rfloor, ff = a->ff;
+    REAL zc[n][B], gc[n][B], dr[n][B], d1[n][B];   /* n <= NMAX rows: 4 n B values on the stack */
+    REAL lam[B], corrs[B], mean[B], Gs[B], G1[B];
+    const REAL *restrict Kq = K + q * n * n, *restrict ksq = ks + q * n;
+    const REAL c = c2h[q];
+    for (int64_t j = 0; j < n; j++) {
+        const REAL *restrict zr = z + (q * n + j) * D + d0, *restrict gr = g + (q * n + j) * D + d0;
+        for (int64_t b = 0; b < m; b++) { zc[j][b] = zr[b]; gc[j][b] = gr[b]; }
+        for (int64_t b = m; b < B; b++) { zc[j][b] = 0; gc[j][b] = 0; }
+    }
+    /* sum_j K_ij z_j and sum_j K_ij g_j, four particles i at a time (each row j read once per four) and one SIMD
+     * vector of coordinates at a time: the 2 IT accumulators stay in registers (16 on AVX2) */
+    for (int64_t i0 = 0; i0 < n; i0 += IT) {
+        const int64_t ni = n - i0 < IT ? n - i0 : IT;
+        /* rows past the last particle read zeros (their sums are not used) */
+        const REAL *K0 = Kq + i0 * n, *K1 = ni > 1 ? K0 + n : zrow, *K2 = ni > 2 ? K0 + 2 * n : zrow,
+                   *K3 = ni > 3 ? K0 + 3 * n : zrow;
+        for (int64_t b0 = 0; b0 < B; b0 += V) {
+            REAL kz[IT][V], kg[IT][V];
+            for (int64_t t = 0; t < IT; t++)
+#pragma omp simd
+                for (int64_t b = 0; b < V; b++) { kz[t][b] = 0; kg[t][b] = 0; }
+            for (int64_t j = 0; j < n; j++) {
+                const REAL k0 = K0[j], k1 = K1[j], k2 = K2[j], k3 = K3[j];
+                const REAL *restrict zj = zc[j] + b0, *restrict gj = gc[j] + b0;
+#pragma omp simd
+                for (int64_t b = 0; b < V; b++) {
+                    kz[0][b] += k0 * zj[b]; kg[0][b] += k0 * gj[b];
+                    kz[1][b] += k1 * zj[b]; kg[1][b] += k1 * gj[b];
+                    kz[2][b] += k2 * zj[b]; kg[2][b] += k2 * gj[b];
+                    kz[3][b] += k3 * zj[b]; kg[3][b] += k3 * gj[b];
+                }
+            }
+            for (int64_t t = 0; t < ni; t++) {
+                const int64_t i = i0 + t;
+                const REAL ksi = ksq[i];
+#pragma omp simd
+                for (int64_t b = 0; b < V; b++) {
+                    const REAL rep = c * (zc[i][b0 + b] * ksi - kz[t][b]);
+                    dr[i][b0 + b] = (rep - rg * kg[t][b]) * in - gb * gc[i][b0 + b];
+                    d1[i][b0 + b] = (rep - kg[t][b]) * in - ibeta * gc[i][b0 + b];
+                }
+            }
+        }
+    }
+    /* the ensemble-scaled step */
+    if (spread && n >= 2) {
+#pragma omp simd
+        for (int64_t b = 0; b < B; b++) mean[b] = 0;
+        for (int64_t j = 0; j < n; j++)
+#pragma omp simd
+            for (int64_t b = 0; b < B; b++) mean[b] += zc[j][b];
+#pragma omp simd
+        for (int64_t b = 0; b < B; b++) { mean[b] *= in; corrs[b] = 0; }
+        for (int64_t j = 0; j < n; j++)
+#pragma omp simd
+            for (int64_t b = 0; b < B; b++) { const REAL e = zc[j][b] - mean[b]; corrs[b] += e * e; }
+#pragma omp simd
+        for (int64_t b = 0; b < B; b++) {
+            const REAL var = corrs[b] / (REAL)(n - 1), s = sqrt(var);
+            lam[b] = rstep * (s > rfloor ? s : rfloor);
+            corrs[b] = (REAL)1 / ((var > ff ? var : ff) * (REAL)(n - 1));   /* corr_i = (z_i - m) corrs */
+        }
+    } else {
+#pragma omp simd
+        for (int64_t b = 0; b < B; b++) { lam[b] = rstep; corrs[b] = 0; mean[b] = 0; }
+    }
+    const int64_t with_corr = spread && n >= 2;
+    /* the preconditioner(s): one second moment per group, or per particle */
+    const int64_t np = per_particle ? n : 1;
+    for (int64_t p = 0; p < np; p++) {
+        const int64_t row = per_particle ? q * n + p : q;
+        const int64_t i0 = per_particle ? p : 0, i1 = per_particle ? p + 1 : n;
+        const REAL w = (REAL)1 / (REAL)(i1 - i0);
+        if (adam) {
+            REAL s2[B], s1[B];
+#pragma omp simd
+            for (int64_t b = 0; b < B; b++) { s2[b] = 0; s1[b] = 0; }
+            for (int64_t i = i0; i < i1; i++)
+#pragma omp simd
+                for (int64_t b = 0; b < B; b++) { s2[b] += dr[i][b] * dr[i][b]; s1[b] += d1[i][b] * d1[i][b]; }
+            const REAL *restrict vr = v + row * D + d0;
+            REAL *restrict vor = vo + row * D + d0;
+            for (int64_t b = 0; b < m; b++) {
+                const REAL nv = rb2 * vr[b] + r1b2 * (s2[b] * w);
+                vor[b] = nv;
+                Gs[b] = (REAL)1 / (sqrt(nv * ibc) + reps);
+                G1[b] = Gs[b];
+            }
+            if (noise_pc) {   /* vn, vno: only read and written while annealing */
+                const REAL *restrict vnr = vn + row * D + d0;
+                REAL *restrict vnor = vno + row * D + d0;
+                for (int64_t b = 0; b < m; b++) {
+                    const REAL nn = rb2 * vnr[b] + r1b2 * (s1[b] * w);
+                    vnor[b] = nn;
+                    G1[b] = (REAL)1 / (sqrt(nn * ibcn) + reps);
+                }
+            }
+        } else {
+            for (int64_t b = 0; b < m; b++) { Gs[b] = 1; G1[b] = 1; }
+        }
+        REAL sq[B], gl[B], mc[B];   /* per coordinate, the same for every particle */
+        for (int64_t b = 0; b < m; b++) {
+            const REAL gn = G1[b] < Gs[b] ? G1[b] : Gs[b];
+            const REAL M = gn * lam[b] * ibeta;
+            sq[b] = sqrt((REAL)2 * M);
+            gl[b] = Gs[b] * lam[b];
+            mc[b] = M;
+        }
+        for (int64_t i = i0; i < i1; i++) {
+            const int64_t r = (q * n + i) * D + d0;
+            const REAL *restrict xr = xi + r;
+            REAL *restrict out = zo + r;
+            for (int64_t b = 0; b < m; b++) {
+                REAL zz = xr[b] * sq[b] + gl[b] * dr[i][b];
+                if (with_corr) zz += mc[b] * (zc[i][b] - mean[b]) * corrs[b];
+                out[b] = zz + zc[i][b];
+            }
+        }
+    }
+}
 
 void bb_spos_update(int64_t G, int64_t n, int64_t D, int64_t nt, const REAL *restrict z, const REAL *restrict g,
                     const REAL *restrict xi, const REAL *restrict K, const REAL *restrict ks,
@@ -31,129 +177,16 @@ void bb_spos_update(int64_t G, int64_t n, int64_t D, int64_t nt, const REAL *res
                     double step, double floor)
 {
     const int64_t nblk = (D + B - 1) / B;
-    const REAL rg = (REAL)gam, ibeta = (REAL)(1.0 / beta), gb = (REAL)(gam / beta), in = (REAL)(1.0 / n),
-               reps = (REAL)eps, rb2 = (REAL)b2, r1b2 = (REAL)(1.0 - b2), ibc = (REAL)(1.0 / bc),
-               ibcn = (REAL)(1.0 / bcn), rstep = (REAL)step, rfloor = (REAL)floor, ff = (REAL)(floor * floor);
+    const upd a = {n, D, adam, per_particle, noise_pc, spread, z, g, xi, K, ks, c2h, v, vn, zo, vo, vno,
+                   (REAL)gam, (REAL)(1.0 / beta), (REAL)(gam / beta), (REAL)(1.0 / n), (REAL)eps, (REAL)b2,
+                   (REAL)(1.0 - b2), (REAL)(1.0 / bc), (REAL)(1.0 / bcn), (REAL)step, (REAL)floor,
+                   (REAL)(floor * floor)};
 #pragma omp parallel for num_threads(nt) schedule(static) collapse(2)
     for (int64_t q = 0; q < G; q++) {
         for (int64_t k = 0; k < nblk; k++) {
-            const int64_t d0 = k * B, m = D - d0 < B ? D - d0 : B;
-            REAL zc[NMAX][B], gc[NMAX][B], dr[NMAX][B], d1[NMAX][B];
-            REAL lam[B], corrs[B], mean[B], Gs[B], G1[B];
-            const REAL *restrict Kq = K + q * n * n, *restrict ksq = ks + q * n;
-            const REAL c = c2h[q];
-            for (int64_t j = 0; j < n; j++) {
-                const REAL *restrict zr = z + (q * n + j) * D + d0, *restrict gr = g + (q * n + j) * D + d0;
-                for (int64_t b = 0; b < m; b++) { zc[j][b] = zr[b]; gc[j][b] = gr[b]; }
-                for (int64_t b = m; b < B; b++) { zc[j][b] = 0; gc[j][b] = 0; }
-            }
-            /* sum_j K_ij z_j and sum_j K_ij g_j, four particles i at a time: each row j read once per four */
-            for (int64_t i0 = 0; i0 < n; i0 += IT) {
-                const int64_t ni = n - i0 < IT ? n - i0 : IT;
-                REAL kz[IT][B], kg[IT][B];
-                for (int64_t t = 0; t < IT; t++)
-#pragma omp simd
-                    for (int64_t b = 0; b < B; b++) { kz[t][b] = 0; kg[t][b] = 0; }
-                /* rows past the last particle read zeros (their sums are not used) */
-                const REAL *K0 = Kq + i0 * n, *K1 = ni > 1 ? K0 + n : zrow, *K2 = ni > 2 ? K0 + 2 * n : zrow,
-                           *K3 = ni > 3 ? K0 + 3 * n : zrow;
-                for (int64_t j = 0; j < n; j++) {
-                    const REAL k0 = K0[j], k1 = K1[j], k2 = K2[j], k3 = K3[j];
-#pragma omp simd
-                    for (int64_t b = 0; b < B; b++) {
-                        const REAL zj = zc[j][b], gj = gc[j][b];
-                        kz[0][b] += k0 * zj; kg[0][b] += k0 * gj;
-                        kz[1][b] += k1 * zj; kg[1][b] += k1 * gj;
-                        kz[2][b] += k2 * zj; kg[2][b] += k2 * gj;
-                        kz[3][b] += k3 * zj; kg[3][b] += k3 * gj;
-                    }
-                }
-                for (int64_t t = 0; t < ni; t++) {
-                    const int64_t i = i0 + t;
-                    const REAL ksi = ksq[i];
-#pragma omp simd
-                    for (int64_t b = 0; b < B; b++) {
-                        const REAL rep = c * (zc[i][b] * ksi - kz[t][b]);
-                        dr[i][b] = (rep - rg * kg[t][b]) * in - gb * gc[i][b];
-                        d1[i][b] = (rep - kg[t][b]) * in - ibeta * gc[i][b];
-                    }
-                }
-            }
-            /* the ensemble-scaled step */
-            if (spread && n >= 2) {
-#pragma omp simd
-                for (int64_t b = 0; b < B; b++) mean[b] = 0;
-                for (int64_t j = 0; j < n; j++)
-#pragma omp simd
-                    for (int64_t b = 0; b < B; b++) mean[b] += zc[j][b];
-#pragma omp simd
-                for (int64_t b = 0; b < B; b++) { mean[b] *= in; corrs[b] = 0; }
-                for (int64_t j = 0; j < n; j++)
-#pragma omp simd
-                    for (int64_t b = 0; b < B; b++) { const REAL e = zc[j][b] - mean[b]; corrs[b] += e * e; }
-#pragma omp simd
-                for (int64_t b = 0; b < B; b++) {
-                    const REAL var = corrs[b] / (REAL)(n - 1), s = sqrt(var);
-                    lam[b] = rstep * (s > rfloor ? s : rfloor);
-                    corrs[b] = (REAL)1 / ((var > ff ? var : ff) * (REAL)(n - 1));   /* corr_i = (z_i - m) corrs */
-                }
-            } else {
-#pragma omp simd
-                for (int64_t b = 0; b < B; b++) { lam[b] = rstep; corrs[b] = 0; mean[b] = 0; }
-            }
-            const int64_t with_corr = spread && n >= 2;
-            /* the preconditioner(s): one second moment per group, or per particle */
-            const int64_t np = per_particle ? n : 1;
-            for (int64_t p = 0; p < np; p++) {
-                const int64_t row = per_particle ? q * n + p : q;
-                const int64_t i0 = per_particle ? p : 0, i1 = per_particle ? p + 1 : n;
-                const REAL w = (REAL)1 / (REAL)(i1 - i0);
-                if (adam) {
-                    REAL s2[B], s1[B];
-#pragma omp simd
-                    for (int64_t b = 0; b < B; b++) { s2[b] = 0; s1[b] = 0; }
-                    for (int64_t i = i0; i < i1; i++)
-#pragma omp simd
-                        for (int64_t b = 0; b < B; b++) { s2[b] += dr[i][b] * dr[i][b]; s1[b] += d1[i][b] * d1[i][b]; }
-                    const REAL *restrict vr = v + row * D + d0;
-                    REAL *restrict vor = vo + row * D + d0;
-                    for (int64_t b = 0; b < m; b++) {
-                        const REAL nv = rb2 * vr[b] + r1b2 * (s2[b] * w);
-                        vor[b] = nv;
-                        Gs[b] = (REAL)1 / (sqrt(nv * ibc) + reps);
-                        G1[b] = Gs[b];
-                    }
-                    if (noise_pc) {   /* vn, vno: only read and written while annealing */
-                        const REAL *restrict vnr = vn + row * D + d0;
-                        REAL *restrict vnor = vno + row * D + d0;
-                        for (int64_t b = 0; b < m; b++) {
-                            const REAL nn = rb2 * vnr[b] + r1b2 * (s1[b] * w);
-                            vnor[b] = nn;
-                            G1[b] = (REAL)1 / (sqrt(nn * ibcn) + reps);
-                        }
-                    }
-                } else {
-                    for (int64_t b = 0; b < m; b++) { Gs[b] = 1; G1[b] = 1; }
-                }
-                REAL sq[B], gl[B], mc[B];   /* per coordinate, the same for every particle */
-                for (int64_t b = 0; b < m; b++) {
-                    const REAL gn = G1[b] < Gs[b] ? G1[b] : Gs[b];
-                    const REAL M = gn * lam[b] * ibeta;
-                    sq[b] = sqrt((REAL)2 * M);
-                    gl[b] = Gs[b] * lam[b];
-                    mc[b] = M;
-                }
-                for (int64_t i = i0; i < i1; i++) {
-                    const int64_t r = (q * n + i) * D + d0;
-                    const REAL *restrict xr = xi + r;
-                    REAL *restrict out = zo + r;
-                    for (int64_t b = 0; b < m; b++) {
-                        REAL zz = xr[b] * sq[b] + gl[b] * dr[i][b];
-                        if (with_corr) zz += mc[b] * (zc[i][b] - mean[b]) * corrs[b];
-                        out[b] = zz + zc[i][b];
-                    }
-                }
-            }
+            const int64_t m = D - k * B < B ? D - k * B : B;
+            if (m == B) block(&a, q, k, B);
+            else block(&a, q, k, m);
         }
     }
 }
