@@ -65,24 +65,31 @@
     } while (0)
 
 /* The loss and its gradient for one light, every term in registers (no per-view arrays): the same
- * expressions as SPEC_LOOP, the loss loops and the gradient loop below, in one pass. */
-#define ONE_LIGHT_LOOP(L2) \
+ * expressions as SPEC_LOOP, the loss loops and the gradient loop below, in one pass. KS(c) is channel c's
+ * specular value of pixel j, AKS(c) where its gradient goes: the map's, or (constant specular whose gradient
+ * is not wanted: the per-texel models) one value per particle and channel and a dead store the compiler drops,
+ * fewer streams and instructions in the hottest loop. */
+#define ONE_LIGHT_LOOP(L2, KS, AKS) \
     _Pragma("omp simd") \
     for (int64_t j = 0; j < m; j++) { \
         const REAL rr = R[j], a = rr * rr, a2 = a * a, k = (REAL)0.5 * a, wj = W[j], wg = WG[j]; \
         REAL s, sd = 0; \
         BB_SPEC(rr, a, a2, k, NH2[j], NL[j], NV[j], s, sd, 1); \
-        const REAL d0 = BB_RADIANCE(A0[j], KD0[j], KS0[j], s, wj, kf) - Y0[j]; \
-        const REAL d1 = BB_RADIANCE(A1[j], KD1[j], KS1[j], s, wj, kf) - Y1[j]; \
-        const REAL d2 = BB_RADIANCE(A2[j], KD2[j], KS2[j], s, wj, kf) - Y2[j]; \
-        REAL h0, h1, h2; \
+        const REAL d0 = BB_RADIANCE(A0[j], KD0[j], KS(0), s, wj, kf) - Y0[j]; \
+        const REAL d1 = BB_RADIANCE(A1[j], KD1[j], KS(1), s, wj, kf) - Y1[j]; \
+        const REAL d2 = BB_RADIANCE(A2[j], KD2[j], KS(2), s, wj, kf) - Y2[j]; \
+        REAL h0, h1, h2, gF = 0, dead_ = 0; \
         LOSS_TERMS(L2, wg, d0, d1, d2, e[j], h0, h1, h2); \
-        REAL gF = 0; \
-        BB_GRAD(h0, A0[j], KD0[j], KS0[j], s, wj, kf, akd0[j], aks0[j], gF); \
-        BB_GRAD(h1, A1[j], KD1[j], KS1[j], s, wj, kf, akd1[j], aks1[j], gF); \
-        BB_GRAD(h2, A2[j], KD2[j], KS2[j], s, wj, kf, akd2[j], aks2[j], gF); \
+        BB_GRAD(h0, A0[j], KD0[j], KS(0), s, wj, kf, akd0[j], AKS(0), gF); \
+        BB_GRAD(h1, A1[j], KD1[j], KS(1), s, wj, kf, akd1[j], AKS(1), gF); \
+        BB_GRAD(h2, A2[j], KD2[j], KS(2), s, wj, kf, akd2[j], AKS(2), gF); \
         ar[j] += gF * sd; \
+        (void)dead_; \
     }
+#define KS_MAP(c) KS##c[j]
+#define AKS_MAP(c) aks##c[j]
+#define KS_CONST(c) ks##c
+#define AKS_DEAD(c) dead_
 
 /* Pixel j's weighted loss per channel from its residuals d = R - y, added into px0..px2 */
 #define PIXEL_TERMS(L2, j, d0, d1, d2) do { \
@@ -99,16 +106,16 @@
     }
 
 /* One light: a view's radiance and its loss per pixel and channel in one loop, in registers (PIXEL_LOOP's
- * expressions on SPEC_LOOP's radiance) */
-#define ONE_LIGHT_PIXEL_LOOP(L2) \
+ * expressions on SPEC_LOOP's radiance); KS as in ONE_LIGHT_LOOP */
+#define ONE_LIGHT_PIXEL_LOOP(L2, KS) \
     _Pragma("omp simd") \
     for (int64_t j = 0; j < m; j++) { \
         const REAL rr = R[j], a = rr * rr, a2 = a * a, k = (REAL)0.5 * a, wj = W[j]; \
         REAL s, sd = 0; \
         BB_SPEC(rr, a, a2, k, NH2[j], NL[j], NV[j], s, sd, 0); \
-        const REAL d0 = BB_RADIANCE(A0[j], KD0[j], KS0[j], s, wj, kf) - Y0[j]; \
-        const REAL d1 = BB_RADIANCE(A1[j], KD1[j], KS1[j], s, wj, kf) - Y1[j]; \
-        const REAL d2 = BB_RADIANCE(A2[j], KD2[j], KS2[j], s, wj, kf) - Y2[j]; \
+        const REAL d0 = BB_RADIANCE(A0[j], KD0[j], KS(0), s, wj, kf) - Y0[j]; \
+        const REAL d1 = BB_RADIANCE(A1[j], KD1[j], KS(1), s, wj, kf) - Y1[j]; \
+        const REAL d2 = BB_RADIANCE(A2[j], KD2[j], KS(2), s, wj, kf) - Y2[j]; \
         PIXEL_TERMS(L2, j, d0, d1, d2); \
     }
 
@@ -149,6 +156,10 @@ static inline void block(const struct args *restrict q, const int64_t i, const i
     const REAL *restrict KS0 = (flags & 4) ? cks[0] : q->ks + i * 3 * P + p0;
     const REAL *restrict KS1 = (flags & 4) ? cks[1] : KS0 + P, *restrict KS2 = (flags & 4) ? cks[2] : KS0 + 2 * P;
     const REAL *restrict R = (flags & 2) ? cr : q->r + i * P + p0;
+    /* constant specular: its three values as scalars (the one-light loops); cks_dead: and its gradient unwanted */
+    const REAL ks0 = (flags & 4) ? q->ks[i * 3] : 0, ks1 = (flags & 4) ? q->ks[i * 3 + 1] : 0,
+               ks2 = (flags & 4) ? q->ks[i * 3 + 2] : 0;
+    const int cks_dead = (flags & 36) == 36;
     REAL akd0[BLK] = {0}, akd1[BLK] = {0}, akd2[BLK] = {0}, aks0[BLK] = {0}, aks1[BLK] = {0},
          aks2[BLK] = {0}, ar[BLK] = {0}, e[BLK] = {0};
     REAL o0[BLK], o1[BLK], o2[BLK], g0[BLK], g1[BLK], g2[BLK];
@@ -160,14 +171,22 @@ static inline void block(const struct args *restrict q, const int64_t i, const i
             const REAL *NL = nl + v * P + p0, *NH2 = nh2 + v * P + p0, *W = w + v * P + p0;
             const REAL *A0 = amp + v * 3 * P + p0, *A1 = A0 + P, *A2 = A0 + 2 * P;
             const REAL *Y0 = y + v * 3 * P + p0, *Y1 = Y0 + P, *Y2 = Y0 + 2 * P, *WG = wgt + v * P + p0;
-            if (l2) { ONE_LIGHT_LOOP(1) } else { ONE_LIGHT_LOOP(0) }
+            if (cks_dead) {
+                if (l2) { ONE_LIGHT_LOOP(1, KS_CONST, AKS_DEAD) } else { ONE_LIGHT_LOOP(0, KS_CONST, AKS_DEAD) }
+            } else {
+                if (l2) { ONE_LIGHT_LOOP(1, KS_MAP, AKS_MAP) } else { ONE_LIGHT_LOOP(0, KS_MAP, AKS_MAP) }
+            }
             continue;
         }
         if (mode == MODE_PIXEL_LOSS && L == 1) {      /* one light: radiance and per-pixel loss in one loop */
             const REAL *NL = nl + v * P + p0, *NH2 = nh2 + v * P + p0, *W = w + v * P + p0;
             const REAL *A0 = amp + v * 3 * P + p0, *A1 = A0 + P, *A2 = A0 + 2 * P;
             const REAL *Y0 = y + v * 3 * P + p0, *Y1 = Y0 + P, *Y2 = Y0 + 2 * P, *WG = wgt + v * P + p0;
-            if (l2) { ONE_LIGHT_PIXEL_LOOP(1) } else { ONE_LIGHT_PIXEL_LOOP(0) }
+            if (flags & 4) {
+                if (l2) { ONE_LIGHT_PIXEL_LOOP(1, KS_CONST) } else { ONE_LIGHT_PIXEL_LOOP(0, KS_CONST) }
+            } else {
+                if (l2) { ONE_LIGHT_PIXEL_LOOP(1, KS_MAP) } else { ONE_LIGHT_PIXEL_LOOP(0, KS_MAP) }
+            }
             continue;
         }
         {  /* radiance of this view, and the specular terms the gradient pass reuses */
