@@ -1,7 +1,8 @@
 /* The proposal densities of the texel-local move (texel_moves.py); compiled on first use by render/native.py.
  * Every entry point runs eight texels at a time, one per SIMD lane (lane_blocks), through the same lane_widths
  * and lane_logq: the arithmetic of texel_moves._local_scale and texel_moves._log_q (the torch reference, which
- * runs where this does not: CUDA, no compiler), in double inside, without the [T, a, b] temporaries.
+ * runs where this does not: CUDA, no compiler), in the particles' precision (LR: float32 particles fill an AVX2
+ * vector with the eight lanes; the log ratios within ~2e-6 nats of float64's), without the [T, a, b] temporaries.
  *
  * Per texel t of group g (inputs texel-major and contiguous: each texel's particles are adjacent):
  *   c [G, T, b, k]  the other half's values (the kernel density's centres)
@@ -28,9 +29,10 @@
 #define KMAX 8
 #define BMAX 256
 #define W 8      /* texels per pass, one per SIMD lane */
-/* The transcendental functions of a REAL: with float particles glibc's float vector functions, eight lanes to an
- * AVX2 vector instead of four, at a relative error (~1e-7) below the float32 particles' own rounding; the sums
- * around them stay in double */
+/* The functions of a REAL (the lanes' arithmetic, LR below): with float particles glibc's float vector functions,
+ * eight lanes to an AVX2 vector instead of four */
+#define LABS(x) ((x) < 0 ? -(x) : (x))
+#define RSQRT(x) _Generic((REAL)0, float: sqrtf, default: sqrt)(x)
 #define REXP(x) _Generic((REAL)0, float: expf, default: exp)(x)
 #define RLOG(x) _Generic((REAL)0, float: logf, default: log)(x)
 #define RLOG1P(x) _Generic((REAL)0, float: log1pf, default: log1p)(x)
@@ -41,7 +43,9 @@
  * [..][W]), which the compiler turns into vector arithmetic and glibc's vector exp, log, sin and cos. A texel alone
  * is too small for that: its loops run over 10 particles and 4 coordinates. Lane is one value per coordinate and
  * lane; a texel's b centres are Lane [b] */
-typedef double Lane[KMAX][W];
+typedef REAL LR;   /* the lanes' arithmetic: the particles' precision (float32: eight lanes to an AVX2 vector) */
+#define LR_MAX _Generic((LR)0, float: FLT_MAX, default: DBL_MAX)
+typedef LR Lane[KMAX][W];
 
 /* The lanes' texels: t0 + l, past the end the last texel again (its results are not written) */
 static void lane_texels(int64_t t0, int64_t T, int64_t tl[W])
@@ -54,26 +58,26 @@ static void lane_texels(int64_t t0, int64_t T, int64_t tl[W])
  * (Euclidean; the first on ties), rounded to REAL, at least hmin; the median of an even count is the lower middle
  * value (torch.median's), found by rank (ties by index). Each pair's distance is computed once, for both its
  * centres, whose candidates still come in increasing index. dist [b], best [b]: scratch */
-static void lane_widths(const Lane *C, int64_t b, int64_t k, double bw, double hmin, Lane *dist, double (*best)[W],
-                        double H[KMAX][W])
+static void lane_widths(const Lane *C, int64_t b, int64_t k, LR bw, LR hmin, Lane *dist, LR (*best)[W],
+                        LR H[KMAX][W])
 {
     const int64_t mid = (b - 1) / 2;
     for (int64_t i = 0; i < b; i++)
 #pragma omp simd
         for (int l = 0; l < W; l++)
-            best[i][l] = DBL_MAX;
+            best[i][l] = LR_MAX;
     for (int64_t i = 0; i < b; i++)
         for (int64_t j = i + 1; j < b; j++) {
-            double d2[W], ad[KMAX][W];
+            LR d2[W], ad[KMAX][W];
 #pragma omp simd
             for (int l = 0; l < W; l++)
                 d2[l] = 0;
             for (int64_t q = 0; q < k; q++)
 #pragma omp simd
                 for (int l = 0; l < W; l++) {
-                    const double d = C[i][q][l] - C[j][q][l];
+                    const LR d = C[i][q][l] - C[j][q][l];
                     d2[l] += d * d;
-                    ad[q][l] = (double)(REAL)fabs(d);
+                    ad[q][l] = LABS(d);
                 }
             for (int64_t q = 0; q < k; q++)
 #pragma omp simd
@@ -88,12 +92,12 @@ static void lane_widths(const Lane *C, int64_t b, int64_t k, double bw, double h
             }
         }
     for (int64_t q = 0; q < k; q++) {
-        double med[W];
+        LR med[W];
 #pragma omp simd
         for (int l = 0; l < W; l++)
             med[l] = 0;
         for (int64_t i = 0; i < b; i++) {
-            double rank[W];          /* the values below dist_i, ties counted for the lower indices */
+            LR rank[W];          /* the values below dist_i, ties counted for the lower indices */
 #pragma omp simd
             for (int l = 0; l < W; l++)
                 rank[l] = 0;
@@ -119,9 +123,9 @@ static void lane_widths(const Lane *C, int64_t b, int64_t k, double bw, double h
 
 /* The kernel density of the lanes' texels, ready to score points: the centres in units of the widths cs [b], the
  * inverse widths and the log normaliser */
-typedef struct { double ih[KMAX][W], lognorm[W], l_kde, l_def; const Lane *cs; int64_t b, k; } LaneKde;
+typedef struct { LR ih[KMAX][W], lognorm[W], l_kde, l_def; const Lane *cs; int64_t b, k; } LaneKde;
 
-static void lane_kde_init(LaneKde *K, const Lane *C, const double H[KMAX][W], int64_t b, int64_t k,
+static void lane_kde_init(LaneKde *K, const Lane *C, const LR H[KMAX][W], int64_t b, int64_t k,
                           double defensive, Lane *cs)
 {
     K->b = b; K->k = k; K->cs = cs;
@@ -133,7 +137,7 @@ static void lane_kde_init(LaneKde *K, const Lane *C, const double H[KMAX][W], in
     for (int64_t q = 0; q < k; q++)
 #pragma omp simd
         for (int l = 0; l < W; l++) {
-            K->lognorm[l] += log(H[q][l]);
+            K->lognorm[l] += RLOG(H[q][l]);
             K->ih[q][l] = 1 / H[q][l];
         }
     for (int64_t j = 0; j < b; j++)
@@ -146,9 +150,9 @@ static void lane_kde_init(LaneKde *K, const Lane *C, const double H[KMAX][W], in
 /* all [W]: sum_q log logistic(x_q), the defensive density's log; jsum [W] (when not NULL): the same over the
  * coordinates with jac[q] != 0, the interval Jacobian's. log logistic(x) = -|x| - 2 log(1 + e^-|x|), and the logs of
  * a sum are the log of a product (each factor in (1, 2]): one log per point, not one per coordinate */
-static void lane_log_logistic(const double X[KMAX][W], int64_t k, const int64_t *jac, double all[W], double jsum[W])
+static void lane_log_logistic(const LR X[KMAX][W], int64_t k, const int64_t *jac, LR all[W], LR jsum[W])
 {
-    double sa[W], pa[W], sj[W], pj[W];
+    LR sa[W], pa[W], sj[W], pj[W];
     int alljac = 1;
 #pragma omp simd
     for (int l = 0; l < W; l++) { sa[l] = 0; pa[l] = 1; sj[l] = 0; pj[l] = 1; }
@@ -156,51 +160,51 @@ static void lane_log_logistic(const double X[KMAX][W], int64_t k, const int64_t 
         if (jsum && jac[q]) {
 #pragma omp simd
             for (int l = 0; l < W; l++) {
-                const double ax = fabs(X[q][l]), f = 1 + REXP((REAL)-ax);
+                const LR ax = LABS(X[q][l]), f = 1 + REXP(-ax);
                 sa[l] -= ax; pa[l] *= f; sj[l] -= ax; pj[l] *= f;
             }
         } else {
             alljac = 0;
 #pragma omp simd
             for (int l = 0; l < W; l++) {
-                const double ax = fabs(X[q][l]);
-                sa[l] -= ax; pa[l] *= 1 + REXP((REAL)-ax);
+                const LR ax = LABS(X[q][l]);
+                sa[l] -= ax; pa[l] *= 1 + REXP(-ax);
             }
         }
     }
 #pragma omp simd
     for (int l = 0; l < W; l++)
-        all[l] = sa[l] - 2 * RLOG((REAL)pa[l]);
+        all[l] = sa[l] - 2 * RLOG(pa[l]);
     if (!jsum)
         return;
 #pragma omp simd
     for (int l = 0; l < W; l++)
-        jsum[l] = alljac ? all[l] : sj[l] - 2 * RLOG((REAL)pj[l]);
+        jsum[l] = alljac ? all[l] : sj[l] - 2 * RLOG(pj[l]);
 }
 
 /* out [W]: log((1 - defensive) KDE(x) + defensive prod_k logistic(x_k)) at the point X [k][W] (ll: the log of that
  * product, lane_log_logistic's `all`), KDE the equal mixture of N(c_j, diag h^2); ex [b][W]: scratch */
-static void lane_logq(const LaneKde *K, const double X[KMAX][W], const double ll[W], double (*ex)[W],
-                      double out[W])
+static void lane_logq(const LaneKde *K, const LR X[KMAX][W], const LR ll[W], LR (*ex)[W],
+                      LR out[W])
 {
     const int64_t b = K->b, k = K->k;
-    double mm[W], wd[W], sum[W], xs[KMAX][W];
+    LR mm[W], wd[W], sum[W], xs[KMAX][W];
 #pragma omp simd
-    for (int l = 0; l < W; l++) { mm[l] = -DBL_MAX; wd[l] = K->l_def; sum[l] = 0; }
+    for (int l = 0; l < W; l++) { mm[l] = -LR_MAX; wd[l] = K->l_def; sum[l] = 0; }
     for (int64_t q = 0; q < k; q++)
 #pragma omp simd
         for (int l = 0; l < W; l++)
             xs[q][l] = X[q][l] * K->ih[q][l];
     for (int64_t j = 0; j < b; j++) {
-        double e[W];          /* summed in a local array: a zeroed ex[j] reloaded whole stalls store forwarding */
+        LR e[W];          /* summed in a local array: a zeroed ex[j] reloaded whole stalls store forwarding */
 #pragma omp simd
         for (int l = 0; l < W; l++)
             e[l] = 0;
         for (int64_t q = 0; q < k; q++)
 #pragma omp simd
             for (int l = 0; l < W; l++) {
-                const double d = xs[q][l] - K->cs[j][q][l];
-                e[l] -= 0.5 * d * d;
+                const LR d = xs[q][l] - K->cs[j][q][l];
+                e[l] -= (LR)0.5 * d * d;
             }
 #pragma omp simd
         for (int l = 0; l < W; l++) {
@@ -208,26 +212,18 @@ static void lane_logq(const LaneKde *K, const double X[KMAX][W], const double ll
             mm[l] = e[l] > mm[l] ? e[l] : mm[l];
         }
     }
-    /* the b exponentials in REAL (REXP), summed in REAL: all eight lanes in one AVX2 vector with float particles */
-    REAL sr[W];
-#pragma omp simd
-    for (int l = 0; l < W; l++)
-        sr[l] = 0;
     for (int64_t j = 0; j < b; j++)
 #pragma omp simd
         for (int l = 0; l < W; l++)
-            sr[l] += REXP((REAL)(ex[j][l] - mm[l]));
-#pragma omp simd
-    for (int l = 0; l < W; l++)
-        sum[l] = sr[l];
+            sum[l] += REXP(ex[j][l] - mm[l]);
 #pragma omp simd
     for (int l = 0; l < W; l++)
         wd[l] += ll[l];
 #pragma omp simd
     for (int l = 0; l < W; l++) {        /* logaddexp(kde, defensive) */
-        const double u = K->l_kde + mm[l] + RLOG((REAL)sum[l]) - K->lognorm[l];
-        const double hi = u > wd[l] ? u : wd[l], lo = u > wd[l] ? wd[l] : u;
-        out[l] = hi + RLOG1P(REXP((REAL)(lo - hi)));
+        const LR u = K->l_kde + mm[l] + RLOG(sum[l]) - K->lognorm[l];
+        const LR hi = u > wd[l] ? u : wd[l], lo = u > wd[l] ? wd[l] : u;
+        out[l] = hi + RLOG1P(REXP(lo - hi));
     }
 }
 
@@ -237,7 +233,7 @@ static void gather_centres(const REAL *c, int64_t g, int64_t T, int64_t b, int64
     for (int64_t j = 0; j < b; j++)
         for (int64_t q = 0; q < k; q++)
             for (int l = 0; l < W; l++)
-                C[j][q][l] = (double)c[((g * T + tl[l]) * b + j) * k + q];
+                C[j][q][l] = (LR)c[((g * T + tl[l]) * b + j) * k + q];
 }
 
 /* One block of W texels of group g: t0 its first, tl its lanes' texels (lane_texels), nl of them real; buf the
@@ -275,9 +271,9 @@ static void scale_block(const void *args, Lane *buf, int64_t g, int64_t t0, int6
 {
     const ScaleArgs *q = args;
     const int64_t T = q->T, b = q->b, k = q->k;
-    double H[KMAX][W];
+    LR H[KMAX][W];
     gather_centres(q->c, g, T, b, k, tl, buf);
-    lane_widths(buf, b, k, q->bw, q->hmin, buf + b, (double (*)[W])(buf + 2 * b), H);
+    lane_widths(buf, b, k, q->bw, q->hmin, buf + b, (LR (*)[W])(buf + 2 * b), H);
     for (int l = 0; l < nl; l++)
         for (int64_t c = 0; c < k; c++)
             q->h[(g * T + t0 + l) * k + c] = (REAL)H[c][l];
@@ -291,7 +287,7 @@ int bb_texel_scale(int64_t G, int64_t T, int64_t b, int64_t k, int64_t nthreads,
     if (k > KMAX || b > BMAX || b < 2)
         return 1;
     const ScaleArgs args = {T, b, k, c, bw, hmin, h};
-    return lane_blocks(G, T, nthreads, 2 * b * sizeof(Lane) + b * sizeof(double[W]), scale_block, &args);
+    return lane_blocks(G, T, nthreads, 2 * b * sizeof(Lane) + b * sizeof(LR[W]), scale_block, &args);
 }
 
 typedef struct { int64_t T, a, b, k; const REAL *c, *x, *h; double defensive; REAL *logq; } LogqArgs;
@@ -301,19 +297,19 @@ static void logq_block(const void *args, Lane *buf, int64_t g, int64_t t0, int64
 {
     const LogqArgs *q = args;
     const int64_t T = q->T, a = q->a, b = q->b, k = q->k;
-    double H[KMAX][W], X[KMAX][W], ll[W], out[W];
+    LR H[KMAX][W], X[KMAX][W], ll[W], out[W];
     LaneKde K;
     gather_centres(q->c, g, T, b, k, tl, buf);
     for (int64_t c = 0; c < k; c++)
         for (int l = 0; l < W; l++)
-            H[c][l] = (double)q->h[(g * T + tl[l]) * k + c];
+            H[c][l] = (LR)q->h[(g * T + tl[l]) * k + c];
     lane_kde_init(&K, buf, H, b, k, q->defensive, buf + b);
     for (int64_t p = 0; p < a; p++) {
         for (int64_t c = 0; c < k; c++)
             for (int l = 0; l < W; l++)
-                X[c][l] = (double)q->x[((g * T + tl[l]) * a + p) * k + c];
+                X[c][l] = (LR)q->x[((g * T + tl[l]) * a + p) * k + c];
         lane_log_logistic(X, k, NULL, ll, NULL);
-        lane_logq(&K, X, ll, (double (*)[W])(buf + 2 * b), out);
+        lane_logq(&K, X, ll, (LR (*)[W])(buf + 2 * b), out);
         for (int l = 0; l < nl; l++)
             q->logq[(g * T + t0 + l) * a + p] = (REAL)out[l];
     }
@@ -327,7 +323,7 @@ int bb_texel_logq(int64_t G, int64_t T, int64_t a, int64_t b, int64_t k, int64_t
     if (k > KMAX || b > BMAX)
         return 1;
     const LogqArgs args = {T, a, b, k, c, x, h, defensive, logq};
-    return lane_blocks(G, T, nthreads, 2 * b * sizeof(Lane) + b * sizeof(double[W]), logq_block, &args);
+    return lane_blocks(G, T, nthreads, 2 * b * sizeof(Lane) + b * sizeof(LR[W]), logq_block, &args);
 }
 
 /* ---------------------------------------------------------------------------------------------- the whole move */
@@ -363,15 +359,15 @@ static void propose_block(const void *args, Lane *buf, int64_t g, int64_t t0, in
     REAL *zp = pa->zp;
     double *dlq = pa->dlq;
     Lane *C = buf, *cs = C + b, *dist = cs + b, *un = dist + b, *nrm = un + a, *X = nrm + a, *lg = X + 2 * a;
-    double (*ex)[W] = (double (*)[W])(lg + 2 * a);
+    LR (*ex)[W] = (LR (*)[W])(lg + 2 * a);
     int64_t pick[BMAX][W];
-    double wide[BMAX][W], H[KMAX][W];
+    LR wide[BMAX][W], H[KMAX][W];
     LaneKde K;
     for (int64_t j = 0; j < b; j++) {
         const REAL *zr = z + B[g * b + j] * D;
         for (int64_t q = 0; q < k; q++)
             for (int l = 0; l < W; l++)
-                C[j][q][l] = (double)zr[layout[tl[l] * k + q]];
+                C[j][q][l] = (LR)zr[layout[tl[l] * k + q]];
     }
     lane_widths(C, b, k, bw, hmin, dist, ex, H);       /* ex: scratch until the densities */
     lane_kde_init(&K, C, H, b, k, defensive, cs);
@@ -395,10 +391,10 @@ static void propose_block(const void *args, Lane *buf, int64_t g, int64_t t0, in
      * sincos call */
     for (int64_t i = 0; i < a; i++)
         for (int64_t q = 0; q < ke; q += 2) {
-            double r[W];
+            LR r[W];
 #pragma omp simd
             for (int l = 0; l < W; l++)
-                r[l] = sqrt(-2 * RLOG((REAL)un[i][q][l]));
+                r[l] = RSQRT(-2 * RLOG((LR)un[i][q][l]));
 #pragma omp simd
             for (int l = 0; l < W; l++)
                 nrm[i][q][l] = r[l] * RCOS((REAL)(two_pi * un[i][q + 1][l]));
@@ -412,15 +408,15 @@ static void propose_block(const void *args, Lane *buf, int64_t g, int64_t t0, in
         const REAL *zr = z + A[g * a + i] * D;
         for (int64_t q = 0; q < k; q++) {
             for (int l = 0; l < W; l++)
-                X[i][q][l] = (double)zr[layout[tl[l] * k + q]];
-            double cp[W];
+                X[i][q][l] = (LR)zr[layout[tl[l] * k + q]];
+            LR cp[W];
             for (int l = 0; l < W; l++)
                 cp[l] = C[pick[i][l]][q][l];
 #pragma omp simd
             for (int l = 0; l < W; l++) {
                 const double v = un[i][q][l] < 1e-12 ? 1e-12 : (un[i][q][l] > 1 - 1e-12 ? 1 - 1e-12 : un[i][q][l]);
-                const double p = wide[i][l] != 0 ? RLOG((REAL)(v / (1 - v))) : cp[l] + H[q][l] * nrm[i][q][l];
-                X[a + i][q][l] = (double)(REAL)p;
+                const LR p = wide[i][l] != 0 ? RLOG((REAL)(v / (1 - v))) : cp[l] + H[q][l] * nrm[i][q][l];
+                X[a + i][q][l] = p;
             }
         }
     }
@@ -428,7 +424,7 @@ static void propose_block(const void *args, Lane *buf, int64_t g, int64_t t0, in
     for (int64_t p = 0; p < 2 * a; p++)        /* lg[p]: [0] the defensive density's log, [1] the Jacobian's */
         lane_log_logistic(X[p], k, jac, lg[p][0], lg[p][1]);
     for (int64_t i = 0; i < a; i++) {
-        double out[2][W], dj[W];
+        LR out[2][W], dj[W];
         lane_logq(&K, X[i], lg[i][0], ex, out[0]);
         lane_logq(&K, X[a + i], lg[a + i][0], ex, out[1]);
 #pragma omp simd
@@ -436,7 +432,7 @@ static void propose_block(const void *args, Lane *buf, int64_t g, int64_t t0, in
             dj[l] = lg[a + i][1][l] - lg[i][1][l];
         const int64_t row = g * a + i;
         for (int l = 0; l < nl; l++) {
-            dlq[row * T + t0 + l] = out[0][l] - out[1][l] + dj[l];
+            dlq[row * T + t0 + l] = (double)out[0][l] - out[1][l] + dj[l];
             for (int64_t q = 0; q < k; q++)
                 zp[row * D + layout[(t0 + l) * k + q]] = (REAL)X[a + i][q][l];
         }
@@ -457,7 +453,7 @@ int bb_texel_propose(int64_t G, int64_t T, int64_t a, int64_t b, int64_t k, int6
     if (k > KMAX || b > BMAX || a > BMAX || b < 2)     /* a mover's draws: 2 + k <= 10 of its stream's 64 */
         return 1;
     const ProposeArgs args = {T, a, b, k, D, k + (k & 1), z, layout, jac, A, B, seed, bw, hmin, defensive, zp, dlq};
-    return lane_blocks(G, T, nthreads, (3 * b + 6 * a) * sizeof(Lane) + b * sizeof(double[W]), propose_block, &args);
+    return lane_blocks(G, T, nthreads, (3 * b + 6 * a) * sizeof(Lane) + b * sizeof(LR[W]), propose_block, &args);
 }
 
 /* Whether x is finite, from its bits: -ffast-math lets the compiler assume isfinite() and NaN comparisons away */

@@ -182,8 +182,8 @@ def test_native_move_scores_its_proposals_as_the_torch_reference_does(small, dty
     """``bb_texel_propose``'s log ratio for the proposals it drew: the torch kernel density at the current and
     proposed values (widths from the other half) plus the Jacobian's difference, which its texel energies leave
     out; and ``bb_texel_accept`` moves exactly the texels whose Metropolis test passes. With float32 particles
-    the kernel's exponentials and logarithms are float32's (sums in double): the log ratio within 1e-5 nats of the
-    reference in float64, a change of the acceptance probability by a relative 1e-5 at most."""
+    the kernel computes in float32: the log ratio within 1e-5 nats of the reference in float64 (measured 1.6e-6), a
+    change of the acceptance probability by a relative 1e-5 at most."""
     from bayes_brdf.render.native import ptr
     prob, pot = small
     if dtype == torch.float32:
