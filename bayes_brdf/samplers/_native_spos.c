@@ -36,6 +36,20 @@ typedef struct {
     REAL rg, ibeta, gb, in, reps, rb2, r1b2, ibc, ibcn, rstep, rfloor, ff;
 } upd;
 
+/* one Adam second moment over m coordinates: v' = b2 v + (1 - b2) w s (s the block's sums of squared drifts, w
+ * one over their count) written to vo, and the preconditioner 1 / (sqrt(v' ibc) + eps) to G */
+static inline __attribute__((always_inline)) void moment(const REAL *restrict vr, REAL *restrict vor,
+                                                          const REAL *restrict s, const REAL w, const REAL ibc,
+                                                          const upd *restrict a, REAL *restrict G, const int64_t m)
+{
+    const REAL rb2 = a->rb2, r1b2 = a->r1b2, reps = a->reps;
+    for (int64_t b = 0; b < m; b++) {
+        const REAL nv = rb2 * vr[b] + r1b2 * (s[b] * w);
+        vor[b] = nv;
+        G[b] = (REAL)1 / (sqrt(nv * ibc) + reps);
+    }
+}
+
 /* one block of B coordinates of group q: m (<= B) of them are real; inlined twice, with m = B (the loops then
  * have constant bounds and vectorise) and with the last block's remainder */
 static inline __attribute__((always_inline)) void block(const upd *restrict a, const int64_t q, const int64_t k,
@@ -46,8 +60,8 @@ static inline __attribute__((always_inline)) void block(const upd *restrict a, c
     const REAL *restrict z = a->z, *restrict g = a->g, *restrict xi = a->xi, *restrict K = a->K,
                *restrict ks = a->ks, *restrict c2h = a->c2h, *restrict v = a->v, *restrict vn = a->vn;
     REAL *restrict zo = a->zo, *restrict vo = a->vo, *restrict vno = a->vno;
-    const REAL rg = a->rg, ibeta = a->ibeta, gb = a->gb, in = a->in, reps = a->reps, rb2 = a->rb2, r1b2 = a->r1b2,
-               ibc = a->ibc, ibcn = a->ibcn, rstep = a->rstep, rfloor = a->rfloor, ff = a->ff;
+    const REAL rg = a->rg, ibeta = a->ibeta, gb = a->gb, in = a->in, ibc = a->ibc, ibcn = a->ibcn,
+               rstep = a->rstep, rfloor = a->rfloor, ff = a->ff;
     REAL zc[n][B], gc[n][B], dr[n][B], d1[n][B];   /* n <= NMAX rows: 4 n B values on the stack */
     REAL lam[B], corrs[B], mean[B], Gs[B], G1[B];
     const REAL *restrict Kq = K + q * n * n, *restrict ksq = ks + q * n;
@@ -128,23 +142,11 @@ static inline __attribute__((always_inline)) void block(const upd *restrict a, c
             for (int64_t i = i0; i < i1; i++)
 #pragma omp simd
                 for (int64_t b = 0; b < B; b++) { s2[b] += dr[i][b] * dr[i][b]; s1[b] += d1[i][b] * d1[i][b]; }
-            const REAL *restrict vr = v + row * D + d0;
-            REAL *restrict vor = vo + row * D + d0;
-            for (int64_t b = 0; b < m; b++) {
-                const REAL nv = rb2 * vr[b] + r1b2 * (s2[b] * w);
-                vor[b] = nv;
-                Gs[b] = (REAL)1 / (sqrt(nv * ibc) + reps);
-                G1[b] = Gs[b];
-            }
-            if (noise_pc) {   /* vn, vno: only read and written while annealing */
-                const REAL *restrict vnr = vn + row * D + d0;
-                REAL *restrict vnor = vno + row * D + d0;
-                for (int64_t b = 0; b < m; b++) {
-                    const REAL nn = rb2 * vnr[b] + r1b2 * (s1[b] * w);
-                    vnor[b] = nn;
-                    G1[b] = (REAL)1 / (sqrt(nn * ibcn) + reps);
-                }
-            }
+            moment(v + row * D + d0, vo + row * D + d0, s2, w, ibc, a, Gs, m);
+            if (noise_pc)   /* vn, vno: only read and written while annealing */
+                moment(vn + row * D + d0, vno + row * D + d0, s1, w, ibcn, a, G1, m);
+            else
+                for (int64_t b = 0; b < m; b++) G1[b] = Gs[b];
         } else {
             for (int64_t b = 0; b < m; b++) { Gs[b] = 1; G1[b] = 1; }
         }
