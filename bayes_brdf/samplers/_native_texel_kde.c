@@ -35,6 +35,11 @@
 #define LABS(x) ((x) < 0 ? -(x) : (x))
 #define RSQRT(x) _Generic((REAL)0, float: sqrtf, default: sqrt)(x)
 #define REXP(x) _Generic((REAL)0, float: expf, default: exp)(x)
+/* e^x for x <= 0, its argument clamped at EXP_LO: e^-80 = 1.8e-35 is below the rounding of every sum it enters (each
+ * has a term of at least 1), and glibc's vector expf takes a scalar path for a whole vector when one lane's
+ * argument is below about -87 (measured: a proposal half 2x slower with narrow kernel widths) */
+#define EXP_LO ((LR)-80)
+#define REXP_NEG(x) REXP((x) > EXP_LO ? (x) : EXP_LO)
 #define RLOG(x) _Generic((REAL)0, float: logf, default: log)(x)
 #define RLOG1P(x) _Generic((REAL)0, float: log1pf, default: log1p)(x)
 #define RSIN(x) _Generic((REAL)0, float: sinf, default: sin)(x)
@@ -55,20 +60,24 @@ static void lane_texels(int64_t t0, int64_t T, int64_t tl[W])
         tl[l] = t0 + l < T ? t0 + l : T - 1;
 }
 
-/* H [k][W]: bw * the median over the b centres C of |c_i - c_nn(i)| per coordinate, nn(i) the nearest other centre
- * (Euclidean; the first on ties), rounded to REAL, at least hmin; the median of an even count is the lower middle
- * value (torch.median's), found by rank (ties by index). Each pair's distance is computed once, for both its
- * centres, whose candidates still come in increasing index. dist [b], best [b]: scratch */
-static void lane_widths(const Lane *C, int64_t b, int64_t k, LR bw, LR hmin, Lane *dist, LR (*best)[W],
-                        LR H[KMAX][W])
+/* dist [b] (the nearest other centre's |c_i - c_nn(i)| per coordinate, nn(i) the nearest by Euclidean distance,
+ * the first on ties) for k coordinates: each centre's candidates in increasing index with its nearest so far in
+ * registers (inlined with k = 4, the common case, for constant loop bounds); a pair's distance is computed for
+ * both its centres, which costs fewer cycles than reading and writing both centres' rows for every pair */
+static inline __attribute__((always_inline)) void lane_nearest(const Lane *C, int64_t b, int64_t k, Lane *dist)
 {
-    const int64_t mid = (b - 1) / 2;
-    for (int64_t i = 0; i < b; i++)
+    for (int64_t i = 0; i < b; i++) {
+        LR best[W], di[KMAX][W];
 #pragma omp simd
         for (int l = 0; l < W; l++)
-            best[i][l] = LR_MAX;
-    for (int64_t i = 0; i < b; i++)
-        for (int64_t j = i + 1; j < b; j++) {
+            best[l] = LR_MAX;
+        for (int64_t q = 0; q < k; q++)
+#pragma omp simd
+            for (int l = 0; l < W; l++)
+                di[q][l] = 0;
+        for (int64_t j = 0; j < b; j++) {
+            if (j == i)
+                continue;
             LR d2[W], ad[KMAX][W];
 #pragma omp simd
             for (int l = 0; l < W; l++)
@@ -82,16 +91,29 @@ static void lane_widths(const Lane *C, int64_t b, int64_t k, LR bw, LR hmin, Lan
                 }
             for (int64_t q = 0; q < k; q++)
 #pragma omp simd
-                for (int l = 0; l < W; l++) {
-                    dist[i][q][l] = d2[l] < best[i][l] ? ad[q][l] : dist[i][q][l];
-                    dist[j][q][l] = d2[l] < best[j][l] ? ad[q][l] : dist[j][q][l];
-                }
+                for (int l = 0; l < W; l++)
+                    di[q][l] = d2[l] < best[l] ? ad[q][l] : di[q][l];
 #pragma omp simd
-            for (int l = 0; l < W; l++) {
-                best[i][l] = d2[l] < best[i][l] ? d2[l] : best[i][l];
-                best[j][l] = d2[l] < best[j][l] ? d2[l] : best[j][l];
-            }
+            for (int l = 0; l < W; l++)
+                best[l] = d2[l] < best[l] ? d2[l] : best[l];
         }
+        for (int64_t q = 0; q < k; q++)
+#pragma omp simd
+            for (int l = 0; l < W; l++)
+                dist[i][q][l] = di[q][l];
+    }
+}
+
+/* H [k][W]: bw * the median over the b centres C of |c_i - c_nn(i)| per coordinate (lane_nearest), rounded to REAL,
+ * at least hmin; the median of an even count is the lower middle value (torch.median's), found by rank (ties by
+ * index). dist [b]: scratch */
+static void lane_widths(const Lane *C, int64_t b, int64_t k, LR bw, LR hmin, Lane *dist, LR H[KMAX][W])
+{
+    const int64_t mid = (b - 1) / 2;
+    if (k == 4)
+        lane_nearest(C, b, 4, dist);
+    else
+        lane_nearest(C, b, k, dist);
     for (int64_t q = 0; q < k; q++) {
         LR med[W];
 #pragma omp simd
@@ -161,7 +183,7 @@ static void lane_log_logistic(const LR X[KMAX][W], int64_t k, const int64_t *jac
         if (jsum && jac[q]) {
 #pragma omp simd
             for (int l = 0; l < W; l++) {
-                const LR ax = LABS(X[q][l]), f = 1 + REXP(-ax);
+                const LR ax = LABS(X[q][l]), f = 1 + REXP_NEG(-ax);
                 sa[l] -= ax; pa[l] *= f; sj[l] -= ax; pj[l] *= f;
             }
         } else {
@@ -169,7 +191,7 @@ static void lane_log_logistic(const LR X[KMAX][W], int64_t k, const int64_t *jac
 #pragma omp simd
             for (int l = 0; l < W; l++) {
                 const LR ax = LABS(X[q][l]);
-                sa[l] -= ax; pa[l] *= 1 + REXP(-ax);
+                sa[l] -= ax; pa[l] *= 1 + REXP_NEG(-ax);
             }
         }
     }
@@ -216,7 +238,7 @@ static void lane_logq(const LaneKde *K, const LR X[KMAX][W], const LR ll[W], LR 
     for (int64_t j = 0; j < b; j++)
 #pragma omp simd
         for (int l = 0; l < W; l++)
-            sum[l] += REXP(ex[j][l] - mm[l]);
+            sum[l] += REXP_NEG(ex[j][l] - mm[l]);
 #pragma omp simd
     for (int l = 0; l < W; l++)
         wd[l] += ll[l];
@@ -224,7 +246,7 @@ static void lane_logq(const LaneKde *K, const LR X[KMAX][W], const LR ll[W], LR 
     for (int l = 0; l < W; l++) {        /* logaddexp(kde, defensive) */
         const LR u = K->l_kde + mm[l] + RLOG(sum[l]) - K->lognorm[l];
         const LR hi = u > wd[l] ? u : wd[l], lo = u > wd[l] ? wd[l] : u;
-        out[l] = hi + RLOG1P(REXP(lo - hi));
+        out[l] = hi + RLOG1P(REXP_NEG(lo - hi));
     }
 }
 
@@ -267,14 +289,14 @@ static int lane_blocks(int64_t G, int64_t T, int64_t nthreads, size_t scratch, L
 
 typedef struct { int64_t T, b, k; const REAL *c; double bw, hmin; REAL *h; } ScaleArgs;
 
-/* scratch: the centres, their distances [b] and the nearest distances [b][W] */
+/* scratch: the centres and their nearest-neighbour distances [b] */
 static void scale_block(const void *args, Lane *buf, int64_t g, int64_t t0, int64_t nl, const int64_t tl[W])
 {
     const ScaleArgs *q = args;
     const int64_t T = q->T, b = q->b, k = q->k;
     LR H[KMAX][W];
     gather_centres(q->c, g, T, b, k, tl, buf);
-    lane_widths(buf, b, k, q->bw, q->hmin, buf + b, (LR (*)[W])(buf + 2 * b), H);
+    lane_widths(buf, b, k, q->bw, q->hmin, buf + b, H);
     for (int l = 0; l < nl; l++)
         for (int64_t c = 0; c < k; c++)
             q->h[(g * T + t0 + l) * k + c] = (REAL)H[c][l];
@@ -288,7 +310,7 @@ int bb_texel_scale(int64_t G, int64_t T, int64_t b, int64_t k, int64_t nthreads,
     if (k > KMAX || b > BMAX || b < 2)
         return 1;
     const ScaleArgs args = {T, b, k, c, bw, hmin, h};
-    return lane_blocks(G, T, nthreads, 2 * b * sizeof(Lane) + b * sizeof(LR[W]), scale_block, &args);
+    return lane_blocks(G, T, nthreads, 2 * b * sizeof(Lane), scale_block, &args);
 }
 
 typedef struct { int64_t T, a, b, k; const REAL *c, *x, *h; double defensive; REAL *logq; } LogqArgs;
@@ -382,7 +404,7 @@ static void propose_block(const void *args, Lane *buf, int64_t g, int64_t t0, in
             for (int l = 0; l < W; l++)
                 C[j][q][l] = (LR)zr[layout[tl[l] * k + q]];
     }
-    lane_widths(C, b, k, bw, hmin, dist, ex, H);       /* ex: scratch until the densities */
+    lane_widths(C, b, k, bw, hmin, dist, H);
     lane_kde_init(&K, C, H, b, k, defensive, cs);
     /* the draws: 0 picks the defensive logistic, 1 the centre, 2.. the coordinates (pairs for Box-Muller) */
     for (int64_t i = 0; i < a; i++) {

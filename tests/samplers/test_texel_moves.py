@@ -216,6 +216,12 @@ def test_native_move_scores_its_proposals_as_the_torch_reference_does(small, dty
               TM.DEFENSIVE, ptr(zp), ptr(dlq)) == 0
     near = (zp[:, L] - 0.3).abs().amax(-1) < 10 * TM.H_MIN
     assert 0.05 < 1 - float(near.double().mean()) < 0.16                          # the defensive share, 0.1
+    # the far ones' kernel exponents are about -1e6 (widths 1e-3): clamped in the kernel (glibc's vector exp is
+    # slow below -87), their log densities still the reference's
+    cur, prop, xb = (t.double() for t in (zc[A][:, L][None], zp[:, L][None], zc[B.reshape(-1)][:, L][None]))
+    h = torch.full_like(xb[:, 0], TM.H_MIN)
+    want = TM._log_q(cur, xb, h) - TM._log_q(prop, xb, h) + J(prop) - J(cur)
+    torch.testing.assert_close(dlq[None], want, rtol=tol, atol=tol)
     zp = z[A]
     assert fn(1, T, 6, 6, k, z.shape[1], 2, ptr(z), ptr(L), ptr(jac), ptr(A), ptr(B), 12345, 2.5, TM.H_MIN,
               TM.DEFENSIVE, ptr(zp), ptr(dlq)) == 0
