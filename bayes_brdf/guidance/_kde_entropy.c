@@ -22,6 +22,10 @@
 #endif
 #define NMAX 128
 #define B 64
+/* exp's argument clamped at EXP_LO (<= 0 here): e^-80 is below the rounding of the sum it enters (which has a term
+ * of 1), and glibc's vector exp takes a scalar path for the whole vector when one lane's argument is below about
+ * -87 (float; -708 double): far renders under a narrow bandwidth */
+#define EXP_LO ((REAL)-80)
 
 int64_t bb_kde_nmax(void) { return NMAX; }
 
@@ -39,7 +43,10 @@ static inline void log_kde(REAL (*restrict v)[B], int64_t n, const REAL *restric
     }
     for (int64_t i = 0; i < n; ++i) {
 #pragma omp simd
-        for (int jj = 0; jj < B; ++jj) { REAL d = r[jj] - v[i][jj]; s[jj] += exp(-(d * d - mn[jj]) * inv2[jj]); }
+        for (int jj = 0; jj < B; ++jj) {
+            const REAL d = r[jj] - v[i][jj], a = -(d * d - mn[jj]) * inv2[jj];
+            s[jj] += exp(a > EXP_LO ? a : EXP_LO);
+        }
     }
 #pragma omp simd
     for (int jj = 0; jj < B; ++jj) out[jj] = -mn[jj] * inv2[jj] + log(s[jj]) - lognorm[jj];
