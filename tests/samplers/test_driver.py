@@ -339,3 +339,16 @@ def test_run_rejects_bad_arguments(kw, match):
 def test_emcee_rejects_odd_walkers():
     with pytest.raises(InputError, match="even number of walkers"):
         _run("emcee", particles=7)
+
+
+def test_divergence_check_reads_each_element_not_only_the_sum():
+    # the driver's per-step check sums the particles first; finite particles whose sum overflows are still finite
+    from bayes_brdf.samplers.driver import _all_finite
+    z = torch.ones(4, 3)
+    assert _all_finite(z)
+    for bad in (float("nan"), float("inf"), float("-inf")):
+        zb = z.clone()
+        zb[2, 1] = bad
+        assert not _all_finite(zb)
+    assert _all_finite(torch.full((4, 3), 3e38))
+    assert not bool(torch.isfinite(torch.full((4, 3), 3e38).sum()))
