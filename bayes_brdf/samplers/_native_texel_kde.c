@@ -27,6 +27,7 @@
 #include <string.h>
 
 #define KMAX 8
+#define INLINE static inline __attribute__((always_inline))   /* for constant k where the caller has one */
 #define BMAX 256
 #define W 8      /* texels per pass, one per SIMD lane */
 #define PF 64    /* texels ahead to prefetch (bb_texel_propose) */
@@ -64,7 +65,7 @@ static void lane_texels(int64_t t0, int64_t T, int64_t tl[W])
  * the first on ties) for k coordinates: each centre's candidates in increasing index with its nearest so far in
  * registers (inlined with k = 4, the common case, for constant loop bounds); a pair's distance is computed for
  * both its centres, which costs fewer cycles than reading and writing both centres' rows for every pair */
-static inline __attribute__((always_inline)) void lane_nearest(const Lane *C, int64_t b, int64_t k, Lane *dist)
+INLINE void lane_nearest(const Lane *C, int64_t b, int64_t k, Lane *dist)
 {
     for (int64_t i = 0; i < b; i++) {
         LR best[W], di[KMAX][W];
@@ -107,7 +108,7 @@ static inline __attribute__((always_inline)) void lane_nearest(const Lane *C, in
 /* H [k][W]: bw * the median over the b centres C of |c_i - c_nn(i)| per coordinate (lane_nearest), rounded to REAL,
  * at least hmin; the median of an even count is the lower middle value (torch.median's), found by rank (ties by
  * index). dist [b]: scratch */
-static void lane_widths(const Lane *C, int64_t b, int64_t k, LR bw, LR hmin, Lane *dist, LR H[KMAX][W])
+INLINE void lane_widths(const Lane *C, int64_t b, int64_t k, LR bw, LR hmin, Lane *dist, LR H[KMAX][W])
 {
     const int64_t mid = (b - 1) / 2;
     if (k == 4)
@@ -148,8 +149,8 @@ static void lane_widths(const Lane *C, int64_t b, int64_t k, LR bw, LR hmin, Lan
  * inverse widths and the log normaliser */
 typedef struct { LR ih[KMAX][W], lognorm[W], l_kde, l_def; const Lane *cs; int64_t b, k; } LaneKde;
 
-static void lane_kde_init(LaneKde *K, const Lane *C, const LR H[KMAX][W], int64_t b, int64_t k,
-                          double defensive, Lane *cs)
+INLINE void lane_kde_init(LaneKde *K, const Lane *C, const LR H[KMAX][W], int64_t b, int64_t k, double defensive,
+                          Lane *cs)
 {
     K->b = b; K->k = k; K->cs = cs;
     K->l_kde = log1p(-defensive); K->l_def = log(defensive);
@@ -173,7 +174,7 @@ static void lane_kde_init(LaneKde *K, const Lane *C, const LR H[KMAX][W], int64_
 /* all [W]: sum_q log logistic(x_q), the defensive density's log; jsum [W] (when not NULL): the same over the
  * coordinates with jac[q] != 0, the interval Jacobian's. log logistic(x) = -|x| - 2 log(1 + e^-|x|), and the logs of
  * a sum are the log of a product (each factor in (1, 2]): one log per point, not one per coordinate */
-static void lane_log_logistic(const LR X[KMAX][W], int64_t k, const int64_t *jac, LR all[W], LR jsum[W])
+INLINE void lane_log_logistic(const LR X[KMAX][W], int64_t k, const int64_t *jac, LR all[W], LR jsum[W])
 {
     LR sa[W], pa[W], sj[W], pj[W];
     int alljac = 1;
@@ -207,8 +208,7 @@ static void lane_log_logistic(const LR X[KMAX][W], int64_t k, const int64_t *jac
 
 /* out [W]: log((1 - defensive) KDE(x) + defensive prod_k logistic(x_k)) at the point X [k][W] (ll: the log of that
  * product, lane_log_logistic's `all`), KDE the equal mixture of N(c_j, diag h^2); ex [b][W]: scratch */
-static void lane_logq(const LaneKde *K, const LR X[KMAX][W], const LR ll[W], LR (*ex)[W],
-                      LR out[W])
+INLINE void lane_logq(const LaneKde *K, const LR X[KMAX][W], const LR ll[W], LR (*ex)[W], LR out[W])
 {
     const int64_t b = K->b, k = K->k;
     LR mm[W], wd[W], sum[W], xs[KMAX][W];
@@ -363,7 +363,7 @@ static inline double uniform01(uint64_t seed, uint64_t stream, uint64_t idx)
 }
 
 typedef struct {
-    int64_t T, a, b, k, D, ke;
+    int64_t T, a, b, k, D;
     const REAL *z; const int64_t *layout, *jac, *A, *B;
     uint64_t seed; double bw, hmin, defensive;
     REAL *zp; double *dlq;
@@ -371,10 +371,10 @@ typedef struct {
 
 /* scratch: the centres, their scaled copies and their nearest-neighbour distances [b], the uniforms and normals [a],
  * the points and their log-logistic terms [2 a]; and the kernel's exponents [b][W] */
-static void propose_block(const void *args, Lane *buf, int64_t g, int64_t t0, int64_t nl, const int64_t tl[W])
+INLINE void propose_k(const ProposeArgs *pa, Lane *buf, int64_t g, int64_t t0, int64_t nl, const int64_t tl[W],
+                      const int64_t k)
 {
-    const ProposeArgs *pa = args;
-    const int64_t T = pa->T, a = pa->a, b = pa->b, k = pa->k, D = pa->D, ke = pa->ke;
+    const int64_t T = pa->T, a = pa->a, b = pa->b, D = pa->D, ke = k + (k & 1);
     const REAL *z = pa->z;
     const int64_t *layout = pa->layout, *jac = pa->jac, *A = pa->A, *B = pa->B;
     const uint64_t seed = pa->seed;
@@ -474,6 +474,16 @@ static void propose_block(const void *args, Lane *buf, int64_t g, int64_t t0, in
     }
 }
 
+/* propose_k, inlined with k = 4 (three albedo channels and roughness: the common case) for constant loop bounds */
+static void propose_block(const void *args, Lane *buf, int64_t g, int64_t t0, int64_t nl, const int64_t tl[W])
+{
+    const ProposeArgs *pa = args;
+    if (pa->k == 4)
+        propose_k(pa, buf, g, t0, nl, tl, 4);
+    else
+        propose_k(pa, buf, g, t0, nl, tl, pa->k);
+}
+
 /* For every mover i (rows A [G a] of z [N, D], the group g = i / a) and texel t (its coordinates layout [T, k]):
  * the proposal (a random centre of the other half, rows B [G, b], plus N(0, h^2) jitter, or with probability
  * `defensive` a standard logistic draw in every coordinate) written to zp [G a, D] at the texel's columns, and
@@ -487,7 +497,7 @@ int bb_texel_propose(int64_t G, int64_t T, int64_t a, int64_t b, int64_t k, int6
 {
     if (k > KMAX || b > BMAX || a > BMAX || b < 2)     /* a mover's draws: 2 + k <= 10 of its stream's 64 */
         return 1;
-    const ProposeArgs args = {T, a, b, k, D, k + (k & 1), z, layout, jac, A, B, seed, bw, hmin, defensive, zp, dlq};
+    const ProposeArgs args = {T, a, b, k, D, z, layout, jac, A, B, seed, bw, hmin, defensive, zp, dlq};
     return lane_blocks(G, T, nthreads, (3 * b + 6 * a) * sizeof(Lane) + b * sizeof(LR[W]), propose_block, &args);
 }
 

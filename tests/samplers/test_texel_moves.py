@@ -178,6 +178,35 @@ def test_native_proposal_densities_match_the_torch_reference(dtype):
 
 @pytest.mark.needs_native
 @pytest.mark.parametrize("dtype", [torch.float64, torch.float32])
+def test_native_move_scores_four_coordinates_as_the_torch_reference_does(dtype):
+    """``bb_texel_propose`` with four coordinates per texel (rgb albedo and roughness: its own inlined path) and a
+    coordinate without a Jacobian: the log ratio of the proposals it drew as the torch reference's, on bimodal
+    texels, one particle alone far out and a texel whose centres coincide."""
+    from bayes_brdf.render.native import ptr
+    gen = torch.Generator().manual_seed(1)
+    T, k, n = 96, 4, 20
+    L = (torch.arange(k)[None] * T + torch.arange(T)[:, None]).contiguous()          # coordinate-major, as sites
+    z = (torch.randn(n, k * T, generator=gen, dtype=torch.float64) * 0.3).to(dtype)
+    z[10:13, L[::2]] += 4.0                               # a second mode of the centres on every other texel
+    z[10, L[1::3]] -= 6.0                                 # one centre alone, far out
+    z[10:, L[-1]] = 0.7                                   # coinciding centres: the width floor
+    jac = torch.tensor([1, 1, 1, 0])
+    A, B = torch.arange(10), torch.arange(10, 20).reshape(1, 10)
+    zp, dlq = z[A], torch.empty(10, T, dtype=torch.float64)
+    fn = TM._kde_kernel("bb_texel_propose", z)
+    assert fn(1, T, 10, 10, k, z.shape[1], 2, ptr(z), ptr(L), ptr(jac), ptr(A), ptr(B), 99, 2.5, TM.H_MIN,
+              TM.DEFENSIVE, ptr(zp), ptr(dlq)) == 0
+    cur, prop, xb = z[A][:, L][None], zp[:, L][None], z[B.reshape(-1)][:, L][None]
+    h = TM._local_scale(xb).mul_(2.5).clamp_min_(TM.H_MIN)
+    cur, prop, xb, h = (t.double() for t in (cur, prop, xb, h))
+    J = lambda x: TM._log_logistic(x[..., :3]).sum(-1)                           # noqa: E731
+    want = TM._log_q(cur, xb, h) - TM._log_q(prop, xb, h) + J(prop) - J(cur)
+    tol = 1e-10 if dtype == torch.float64 else 1e-5
+    torch.testing.assert_close(dlq[None], want, rtol=tol, atol=tol)
+
+
+@pytest.mark.needs_native
+@pytest.mark.parametrize("dtype", [torch.float64, torch.float32])
 def test_native_move_scores_its_proposals_as_the_torch_reference_does(small, dtype):
     """``bb_texel_propose``'s log ratio for the proposals it drew: the torch kernel density at the current and
     proposed values (widths from the other half) plus the Jacobian's difference, which its texel energies leave
