@@ -5,7 +5,7 @@
  *   log S = log P(noise / scale >= t) = -t - log 2 (t >= 0), log(1 - e^t / 2) (t < 0)
  *   d log S / dt = -1 (t >= 0), 1 - 1 / S (t < 0)
  * total [i] = sum_m w_k log S,  dsig [i] = d total / d s_i = -sum_m w_k (d log S / dt) t / s_i,
- * terms [i, k] = sum_c w_k log S (optional), grad [i, m] = d total / d r_im = -w_k (d log S / dt) / (s_i g_k)
+ * terms [i, k] = sum_c w_k log S (optional, double), grad [i, m] = d total / d r_im = -w_k (d log S / dt) / (s_i g_k)
  * (optional). In double inside whatever REAL is; each particle is one thread's, in a fixed order, so the sums do
  * not depend on the thread count. Built with -ffast-math for glibc's vector exp and log1p: the inputs are finite
  * renders and levels, and both branches are computed with e^min(t, 0), so nothing overflows.
@@ -21,7 +21,7 @@
 int bb_censored_laplace(int64_t n, int64_t K, int64_t C, int64_t nthreads, const REAL *restrict r,
                         const REAL *restrict level, const double *restrict s, const REAL *restrict g,
                         const REAL *restrict w, double *restrict total, double *restrict dsig,
-                        REAL *restrict terms, REAL *restrict grad)
+                        double *restrict terms, REAL *restrict grad)
 {
     const int64_t M = K * C;
     const double ln2 = log(2.0);
@@ -56,7 +56,7 @@ int bb_censored_laplace(int64_t n, int64_t K, int64_t C, int64_t nthreads, const
                 double lt = 0;
                 for (int64_t c = 0; c < C; c++)
                     lt += per[k * C + c];
-                terms[i * K + k] = (REAL)lt;
+                terms[i * K + k] = lt;
             }
             free(per);
         }

@@ -26,9 +26,10 @@ def censored_laplace(r: Tensor, level: Tensor, sigma: Tensor, noise: Tensor | No
     """For renders ``r [n, K, 3]`` of the saturated pixels, their clip ``level [K, 3]``, the noise scale
     ``sigma [n]`` (times ``noise [K]``, the pixels' relative scales, when given) and weights ``weight [K]``:
     ``(total, dsigma, per_pixel, d_r)``, where ``total [n]`` float64 is ``sum w log S``, ``dsigma [n]`` float64
-    its derivative in ``sigma``, ``per_pixel [n, K]`` (with ``terms``) the sums over each pixel's channels and
-    ``d_r [n, K, 3]`` (with ``grad``) the derivative of ``total`` in ``r``, both in ``r``'s dtype. ``None``
-    where the kernel does not run (then the torch expressions do)."""
+    its derivative in ``sigma``, ``per_pixel [n, K]`` float64 (with ``terms``) the sums over each pixel's channels
+    and ``d_r [n, K, 3]`` (with ``grad``) the derivative of ``total`` in ``r``, in ``r``'s dtype. ``None`` where
+    the kernel does not run (then the torch expressions do). The kernel computes in double whatever ``r``'s dtype:
+    float32 renders give the same numbers as their float64 copies."""
     if r.device.type != "cpu" or r.dim() != 3 or r.shape[2] != 3:
         return None
     fn = native_function(_SRC, "bb_censored_laplace", r.dtype,
@@ -38,14 +39,34 @@ def censored_laplace(r: Tensor, level: Tensor, sigma: Tensor, noise: Tensor | No
         return None
     n, K, _ = r.shape
     rc = r.detach().contiguous()
-    lev = level.detach().to(r.dtype).contiguous()
+    lev, g, w = _per_value(level, noise, weight, r.dtype)
     s = sigma.detach().reshape(-1).expand(n).double().contiguous()
-    g = None if noise is None else noise.detach().to(r.dtype).repeat_interleave(3).contiguous()     # per value
-    w = weight.detach().to(r.dtype).repeat_interleave(3).contiguous()
     total = torch.empty(n, dtype=torch.float64)
     dsig = torch.empty(n, dtype=torch.float64)
-    per = torch.empty(n, K, dtype=r.dtype) if terms else None
+    per = torch.empty(n, K, dtype=torch.float64) if terms else None
     dr = torch.empty(n, K, 3, dtype=r.dtype) if grad else None
     if fn(n, K, 3, torch.get_num_threads(), *map(ptr, (rc, lev, s, g, w, total, dsig, per, dr))) != 0:
         return None
     return total, dsig, per, dr
+
+
+_PER_VALUE: dict = {}     # (id, version) of level, noise and weight, dtype -> their kernel layouts
+
+
+def _per_value(level: Tensor, noise: Tensor | None, weight: Tensor, dtype) -> tuple:
+    """``(level [K, 3], noise [3 K] or None, weight [3 K])`` contiguous in ``dtype``, noise and weight repeated over
+    each pixel's channels: the kernel's layout, made once per data (they are the same tensors every step), kept
+    while the tensors are alive and unchanged (the entry holds them, so their ids are not reused)."""
+    src = (level, noise, weight)
+    key = tuple((id(t), t._version) if t is not None else None for t in src) + (dtype,)
+    hit = _PER_VALUE.get(key)
+    if hit is not None and all(a is b for a, b in zip(hit[0], src)):
+        return hit[1]
+    out = (level.detach().to(dtype).contiguous(),
+           None if noise is None else noise.detach().to(dtype).repeat_interleave(3).contiguous(),
+           weight.detach().to(dtype).repeat_interleave(3).contiguous())
+    _PER_VALUE[key] = (src, out)
+    while len(_PER_VALUE) > 8:
+        _PER_VALUE.pop(next(iter(_PER_VALUE)))
+    return out
+

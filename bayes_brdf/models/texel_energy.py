@@ -70,8 +70,8 @@ def _censored_renders(model, data: ModelData, values: dict) -> Tensor | None:
     c = data.censored
     if c is None or model.saturated != "censored":
         return None
-    with torch.no_grad():
-        return shade(model.maps(values), c.gbuffer, backend=model.backend)[:, 0, 0].double()       # [n, K, 3]
+    with torch.no_grad():       # [n, K, 3] in the maps' dtype: the native terms read them so (and compute in double)
+        return shade(model.maps(values), c.gbuffer, backend=model.backend)[:, 0, 0]
 
 
 def _censored_terms(model, data: ModelData, r: Tensor, sigma: Tensor, slope: bool = False, channels: bool = True):
@@ -80,7 +80,7 @@ def _censored_terms(model, data: ModelData, r: Tensor, sigma: Tensor, slope: boo
     ``slope``, also their sum's derivative in ``sigma`` (``(terms, [n])``; ``t = (level - R) / (sigma g)``, so
     ``d log S / d sigma = (d log S / d t) (-t / sigma)``)."""
     c = data.censored
-    if not channels and model.likelihood == "laplace":
+    if not channels and model.likelihood == "laplace":       # the native kernel, in double from r as it is
         got = censored_laplace(r, c.level, sigma, c.noise, c.weight, terms=True)
         if got is not None:
             _, dsig, per_pixel, _ = got
@@ -88,7 +88,7 @@ def _censored_terms(model, data: ModelData, r: Tensor, sigma: Tensor, slope: boo
     if not channels:
         out = _censored_terms(model, data, r, sigma, slope)
         return (out[0].sum(-1), out[1]) if slope else out.sum(-1)
-    n = r.shape[0]
+    n, r = r.shape[0], r.double()                            # the torch terms: in float64
     sc = sigma.reshape(n, 1, 1).to(r) * (1 if c.noise is None else c.noise.to(r)[None, :, None])
     t = (c.level.to(r)[None] - r) / sc
     val = censored_log_survival(t, model.likelihood)
@@ -119,7 +119,7 @@ def _likelihood(model, data: ModelData, resid: Tensor, cens: Tensor | None, kapp
     out = resid.double().mul_(kappa.reshape(n, *[1] * (1 + channels)).double())
     if cens is not None:
         idx = data.censored.gbuffer.texel.reshape(-1).to(out.device)
-        out = out.index_add(1, idx, cens.to(out.dtype).neg())
+        out.index_add_(1, idx, cens.to(out.dtype).neg())
     return out.mul_(data.scale)
 
 
