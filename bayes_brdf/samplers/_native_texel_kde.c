@@ -501,6 +501,9 @@ int bb_texel_propose(int64_t G, int64_t T, int64_t a, int64_t b, int64_t k, int6
     return lane_blocks(G, T, nthreads, (3 * b + 6 * a) * sizeof(Lane) + b * sizeof(LR[W]), propose_block, &args);
 }
 
+/* the log of uniform01's smallest value, 2^-54 (-37.42995), rounded down: at or below it no draw accepts */
+#define LOG_U_MIN (-37.43)
+
 /* Whether x is finite, from its bits: -ffast-math lets the compiler assume isfinite() and NaN comparisons away */
 static inline int finite_bits(double x)
 {
@@ -536,8 +539,13 @@ int64_t bb_texel_accept(int64_t na, int64_t T, int64_t k, int64_t D, int64_t nth
                 if (!finite_bits(ecur)) {                   /* the current state impossible (+inf): any move is better; */
                     if (!is_plus_inf(ecur))                 /* -inf or NaN: refused, as torch's comparison does */
                         continue;
-                } else if (!(log(uniform01(seed, (uint64_t)(i * T + t), 0)) < ecur - eprop + dlq[i * T + t]))
-                    continue;
+                } else {
+                    /* log u < d, with log u in [LOG_U_MIN, 0] (u rounds to 1 at most): the draw decides only for d
+                     * in (LOG_U_MIN, 0], so the logs of the others are not taken (the same decisions) */
+                    const double d = ecur - eprop + dlq[i * T + t];
+                    if (!(d > 0) && (d <= LOG_U_MIN || !(log(uniform01(seed, (uint64_t)(i * T + t), 0)) < d)))
+                        continue;
+                }
                 for (int64_t q = 0; q < k; q++)
                     z[A[i] * D + layout[t * k + q]] = zp[i * D + layout[t * k + q]];
                 accepted++;
