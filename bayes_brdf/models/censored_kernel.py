@@ -17,6 +17,7 @@ import torch
 from torch import Tensor
 
 from ..render.native import native_function, ptr
+from ..render.tensor_memo import TensorMemo
 
 _SRC = Path(__file__).parent / "_native_censored.c"
 
@@ -50,23 +51,13 @@ def censored_laplace(r: Tensor, level: Tensor, sigma: Tensor, noise: Tensor | No
     return total, dsig, per, dr
 
 
-_PER_VALUE: dict = {}     # (id, version) of level, noise and weight, dtype -> their kernel layouts
+_PER_VALUE = TensorMemo(8)     # the kernel layouts of level, noise and weight, by their identity
 
 
 def _per_value(level: Tensor, noise: Tensor | None, weight: Tensor, dtype) -> tuple:
     """``(level [K, 3], noise [3 K] or None, weight [3 K])`` contiguous in ``dtype``, noise and weight repeated over
-    each pixel's channels: the kernel's layout, made once per data (they are the same tensors every step), kept
-    while the tensors are alive and unchanged (the entry holds them, so their ids are not reused)."""
-    src = (level, noise, weight)
-    key = tuple((id(t), t._version) if t is not None else None for t in src) + (dtype,)
-    hit = _PER_VALUE.get(key)
-    if hit is not None and all(a is b for a, b in zip(hit[0], src)):
-        return hit[1]
-    out = (level.detach().to(dtype).contiguous(),
-           None if noise is None else noise.detach().to(dtype).repeat_interleave(3).contiguous(),
-           weight.detach().to(dtype).repeat_interleave(3).contiguous())
-    _PER_VALUE[key] = (src, out)
-    while len(_PER_VALUE) > 8:
-        _PER_VALUE.pop(next(iter(_PER_VALUE)))
-    return out
-
+    each pixel's channels: the kernel's layout, made once per data (they are the same tensors every step)."""
+    return _PER_VALUE.get((level, noise, weight), (dtype,), lambda: (
+        level.detach().to(dtype).contiguous(),
+        None if noise is None else noise.detach().to(dtype).repeat_interleave(3).contiguous(),
+        weight.detach().to(dtype).repeat_interleave(3).contiguous()))

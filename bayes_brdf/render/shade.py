@@ -17,7 +17,6 @@ Example:
 from __future__ import annotations
 
 import numbers
-from collections import OrderedDict
 from dataclasses import replace
 
 import torch
@@ -29,6 +28,7 @@ from . import fused, native, texels
 from .gbuffer import GBUFFERS, GBuffer
 from .maps import SVBRDF
 from .surface import PlanarSample
+from .tensor_memo import TensorMemo
 
 #: default cap on the elements of one chunk's output (particles x views x pixels x 3)
 CHUNK_ELEMENTS = 64 * 2**20
@@ -341,7 +341,7 @@ def _compact_data(g: GBuffer, index: Tensor, target: Tensor, weight, kind: str):
     return out
 
 
-_CHANNELS_FIRST: OrderedDict = OrderedDict()
+_CHANNELS_FIRST = TensorMemo(4)
 
 
 def channels_first(target: Tensor, device, dtype) -> Tensor:
@@ -352,16 +352,8 @@ def channels_first(target: Tensor, device, dtype) -> Tensor:
     """
     if target.requires_grad:
         return target.to(device=device, dtype=dtype).permute(0, 3, 1, 2)
-    key = (id(target), dtype, str(device))
-    hit = _CHANNELS_FIRST.get(key)
-    if hit is not None and hit[0] is target and hit[1] == target._version:
-        _CHANNELS_FIRST.move_to_end(key)
-        return hit[2]
-    y = target.to(device=device, dtype=dtype).permute(0, 3, 1, 2).contiguous()
-    _CHANNELS_FIRST[key] = (target, target._version, y)
-    while len(_CHANNELS_FIRST) > 4:
-        _CHANNELS_FIRST.popitem(last=False)
-    return y
+    return _CHANNELS_FIRST.get((target,), (dtype, str(device)),
+                               lambda: target.to(device=device, dtype=dtype).permute(0, 3, 1, 2).contiguous())
 
 
 def shade_pixel_loss(maps: SVBRDF, g: GBuffer, target: Tensor, weight: Tensor | float = 1.0, *, kind: str = "l1",
