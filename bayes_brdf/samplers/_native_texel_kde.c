@@ -63,8 +63,8 @@ static void lane_texels(int64_t t0, int64_t T, int64_t tl[W])
 
 /* dist [b] (the nearest other centre's |c_i - c_nn(i)| per coordinate, nn(i) the nearest by Euclidean distance,
  * the first on ties) for k coordinates: each centre's candidates in increasing index with its nearest so far in
- * registers (inlined with k = 4, the common case, for constant loop bounds); a pair's distance is computed for
- * both its centres, which costs fewer cycles than reading and writing both centres' rows for every pair */
+ * registers. Each pair's distance is computed twice, once for each of its centres: fewer cycles than reading and
+ * writing both centres' rows for every pair */
 INLINE void lane_nearest(const Lane *C, int64_t b, int64_t k, Lane *dist)
 {
     for (int64_t i = 0; i < b; i++) {
@@ -111,10 +111,7 @@ INLINE void lane_nearest(const Lane *C, int64_t b, int64_t k, Lane *dist)
 INLINE void lane_widths(const Lane *C, int64_t b, int64_t k, LR bw, LR hmin, Lane *dist, LR H[KMAX][W])
 {
     const int64_t mid = (b - 1) / 2;
-    if (k == 4)
-        lane_nearest(C, b, 4, dist);
-    else
-        lane_nearest(C, b, k, dist);
+    lane_nearest(C, b, k, dist);
     for (int64_t q = 0; q < k; q++) {
         LR med[W];
 #pragma omp simd
