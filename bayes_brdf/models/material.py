@@ -21,7 +21,7 @@ from torch import Tensor
 
 from .. import checks
 from ..errors import InputError
-from ..render.maps import SVBRDF
+from ..render.maps import SVBRDF, unit_vectors
 from . import priors as P
 from .data import ModelData
 from .base import MAPS, ObservedModel  # noqa: F401  (MAPS re-exported)
@@ -132,7 +132,7 @@ class PerTexel(MaterialModel):
         if "normal_slope" in values:
             s = values["normal_slope"]
             nrm = torch.cat([-s, torch.ones_like(s[..., :1, :, :])], dim=-3)
-            nrm = nrm / nrm.norm(dim=-3, keepdim=True)
+            nrm = unit_vectors(nrm)
         elif isinstance(self.normals, str):
             nrm = self._fixed((0.0, 0.0, 1.0), 3, a)
         else:

@@ -25,7 +25,7 @@ import torch
 from torch import Tensor
 
 from ..errors import InputError
-from ..render.maps import SVBRDF
+from ..render.maps import SVBRDF, unit_vectors
 
 GAMMA = 2.2
 #: the lowest roughness the encoding reaches: ((-0.3 + 1) / 2) ** 2.2
@@ -45,8 +45,7 @@ def decode(t: Tensor) -> SVBRDF:
     albedo = g(t[..., 0:3, :, :], -1.0)
     xy = t[..., 3:5, :, :].clamp(-1.0, 1.0)
     z = (1 - (xy * xy).sum(-3, keepdim=True).clamp(0.0, 1 - 1e-6)).sqrt()
-    n = torch.cat([xy, z], dim=-3)
-    n = n / n.norm(dim=-3, keepdim=True)
+    n = unit_vectors(torch.cat([xy, z], dim=-3))
     rough = g(t[..., 5:6, :, :], -0.3).clamp_min(1e-6)
     spec = g(t[..., 6:9, :, :], -1.0)
     return SVBRDF(albedo, rough, spec, n)

@@ -26,7 +26,7 @@ from torch import Tensor
 from ..errors import InputError
 from . import fused, native, texels
 from .gbuffer import GBUFFERS, GBuffer
-from .maps import SVBRDF
+from .maps import SVBRDF, unit_vectors
 from .surface import PlanarSample
 from .tensor_memo import TensorMemo
 
@@ -77,7 +77,7 @@ def _texel_grid(maps: SVBRDF, g: GBuffer):
 
 
 def _normalize(x: Tensor, dim: int) -> Tensor:
-    return x / (x * x).sum(dim, keepdim=True).clamp_min(1e-30).sqrt()
+    return unit_vectors(x, dim, floor=1e-15)
 
 
 def geometry_terms(normal: Tensor, g: GBuffer, eps: float = 1e-8):
