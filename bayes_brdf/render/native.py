@@ -8,6 +8,9 @@ accumulate in registers rather than in per-view temporaries:
 * ``_native_texels.c``: pixels that read texel maps through bilinear taps (a mesh's pixels); SIMD over
   particles, so a pixel's four texels are vector loads and its gradients vector adds, in fixed chunks of
   pixels (:class:`~bayes_brdf.render.texels.ChunkPlan`) so that its sums do not depend on the thread count.
+* ``_native_normal_maps.c``: the loss of pixels that are texels when each particle has its own normal map (a
+  decoded one, or sampled normals): the cosines made per particle in the loop, the gradient w.r.t. the normals
+  too (:class:`NativeNormalMapLoss`).
 
 Both share the BRDF terms of ``_native_brdf.h``. Used by the ``"compiled"`` backend for CPU tensors when a
 C compiler is available (``cc``/``gcc``), else the ``torch.compile`` path is used. Built once per source
@@ -37,6 +40,7 @@ import torch
 from torch import Tensor
 
 from . import transfer
+from .tensor_memo import TensorMemo
 
 _DIR = Path(__file__).parent
 _LOCK = threading.Lock()
@@ -124,6 +128,13 @@ def _texel_lib(dtype: torch.dtype, lanes: int = 8):
                            extra_flags=() if lanes == 8 else (f"-DLANES={lanes}",), fallback="sparse torch lookups")
 
 
+def _normal_maps_lib(dtype: torch.dtype):
+    """The per-particle-normals loss kernel for ``dtype``, or ``None`` when native kernels are unavailable."""
+    return native_function(_DIR / "_native_normal_maps.c", "bb_shade_normal_maps", dtype,
+                           [ctypes.c_int64] * 9 + [ctypes.c_double] + [ctypes.c_void_p] * 17,
+                           fallback="eager torch shading")
+
+
 def texel_lanes(dtype: torch.dtype, n: int) -> int:
     """Particles per vector for the texel kernel: 16 where the compiled kernel has 64-byte vectors (AVX-512) of
     float32 and 16 lanes take fewer passes over ``n`` particles than 8 (20 particles: 2 passes instead of 3),
@@ -136,10 +147,11 @@ def texel_lanes(dtype: torch.dtype, n: int) -> int:
     return 16 if width is not None and width() >= 64 else 8
 
 
-def available(t: Tensor, texels: bool = False) -> bool:
-    """Whether the native pixel kernel (``texels``: the texel kernel) can run on tensors like ``t`` (CPU,
-    float32/float64, built OK)."""
-    return t.device.type == "cpu" and (_texel_lib if texels else _lib)(t.dtype) is not None
+def available(t: Tensor, texels: bool = False, normal_maps: bool = False) -> bool:
+    """Whether the native pixel kernel (``texels``: the texel kernel; ``normal_maps``: the per-particle-normals
+    loss) can run on tensors like ``t`` (CPU, float32/float64, built OK)."""
+    lib = _texel_lib if texels else _normal_maps_lib if normal_maps else _lib
+    return t.device.type == "cpu" and lib(t.dtype) is not None
 
 
 def ptr(t: Tensor | None):
@@ -316,6 +328,86 @@ class NativeLoss(torch.autograd.Function):
             ge = ge.to(next(g.dtype for g in grads if g is not None))
             grads = [None if g is None else g * ge.reshape(-1, *([1] * (g.dim() - 1))) for g in grads]
         return (*_unflat(grads, ctx.shapes), *(None,) * 11)
+
+
+_NORMAL_GEO = TensorMemo(8)
+
+
+def normal_map_geometry(tangent, bitangent, normal, view_dir, light_dir, light_scale, eps: float):
+    """The particle-independent inputs of :class:`NativeNormalMapLoss` from a G-buffer's ``[V, 3, H, W]`` frame and
+    view directions and ``[V, L, 3, H, W]`` light directions and scales, kept while the same tensors come again:
+    ``(frame [V, 9, P], v [V, 3, P], l [V, L, 3, P], h [V, L, 3, P], w(v.h) [V, L, P], scale [V, L, 3, P])``, ``h``
+    and ``v.h`` as :func:`~bayes_brdf.render.shade.geometry_terms` makes them."""
+    from .brdf import fresnel_weight
+    from .maps import unit_vectors
+
+    def make():
+        V, L = light_dir.shape[:2]
+        P = view_dir.shape[-2] * view_dir.shape[-1]
+        frame = torch.cat([tangent.expand_as(view_dir), bitangent.expand_as(view_dir), normal.expand_as(view_dir)],
+                          1).reshape(V, 9, P).contiguous()
+        vd = view_dir.reshape(V, 3, P).contiguous()
+        ld = light_dir.reshape(V, L, 3, P).contiguous()
+        hd = unit_vectors(ld + vd[:, None], 2, floor=1e-15).contiguous()
+        w = fresnel_weight((vd[:, None] * hd).sum(2).clamp_min(eps)).contiguous()
+        return frame, vd, ld, hd, w, light_scale.reshape(V, L, 3, P).contiguous()
+    return _NORMAL_GEO.get((tangent, bitangent, normal, view_dir, light_dir, light_scale), (eps,), make)
+
+
+def _rows(t: Tensor, n: int, c: int, hw) -> Tensor:
+    """A map ``[n', c, H, W]`` or ``[c, H, W]`` (``H x W`` the pixels', or ``1 x 1``) as contiguous ``[n, c, P]``
+    (``[n, c, 1]`` for a constant)."""
+    t = t if t.dim() == 4 else t[None]
+    size = (1, 1) if tuple(t.shape[-2:]) == (1, 1) else tuple(hw)
+    return t.expand(n, c, *size).reshape(n, c, -1).contiguous()
+
+
+class NativeNormalMapLoss(torch.autograd.Function):
+    """Per-particle loss ``[n]`` of views whose pixels are the texels, each particle with its own normal map
+    (``kd, ks [n', 3, H, W]``, ``r [n', 1, H, W]``, ``normal [n', 3, H, W]``, each also ``[C, H, W]`` or ``1 x 1``
+    for ``kd, r, ks``); ``geo`` from :func:`normal_map_geometry`; ``y [V, 3, H, W]``, ``wgt [V, 1, H, W]``. The
+    gradients w.r.t. the maps and the normals are computed in the same pass as the loss."""
+
+    @staticmethod
+    def forward(ctx, kd, r, ks, normal, geo, y, wgt, ks_factor, l1, eps):
+        frame, vd, ld, hd, w, scale = geo
+        V, L, _, P = ld.shape
+        hw = y.shape[-2:]
+        n = max(t.shape[0] if t.dim() == 4 else 1 for t in (kd, r, ks, normal))
+        maps = [_rows(kd, n, 3, hw), _rows(r, n, 1, hw)[:, 0], _rows(ks, n, 3, hw)]
+        nt = _rows(normal, n, 3, hw)
+        want = ctx.needs_input_grad[:4]
+        grad = any(want)
+        const = [m.shape[-1] == 1 and P > 1 for m in maps]
+        flags = sum(1 << k for k, c in enumerate(const) if c) + sum(8 << k for k, f in enumerate(want[:3]) if not f) \
+            + (0 if want[3] else 64)
+        nb = (P + 63) // 64
+        dt = nt.dtype
+        epart = torch.empty(n, nb, dtype=torch.float64)
+        grads = [None if not (grad and f) else torch.empty(*m.shape[:-1], nb, dtype=dt) if c else torch.empty_like(m)
+                 for m, c, f in zip(maps, const, want[:3])]
+        gn = torch.empty_like(nt) if grad and want[3] else None
+        yy = y.reshape(V, 3, P).contiguous()
+        ww = wgt.expand(V, 1, *hw).reshape(V, P).contiguous()
+        _normal_maps_lib(dt)(n, V, L, P, int(ks_factor), int(not l1), int(grad), torch.get_num_threads(), flags,
+                             float(eps), *map(ptr, (*maps, nt, frame, vd, ld, hd, w, scale, yy, ww, epart, *grads, gn)))
+        if grad:       # per particle [n, c, H, W] (or [n, c, 1, 1]): scaled by the upstream gradient, then summed
+            grads = [g.sum(-1, keepdim=True) if g is not None and c else g for g, c in zip(grads, const)]
+            sizes = [(1, 1) if tuple(s.shape[-2:]) == (1, 1) else tuple(hw) for s in (kd, r, ks, normal)]
+            ctx.save_for_backward(*(None if g is None else g.reshape(n, -1, *z) for g, z in zip((*grads, gn), sizes)))
+        ctx.shapes = (kd.shape, r.shape, ks.shape, normal.shape)
+        return epart.sum(1).to(dt)
+
+    @staticmethod
+    def backward(ctx, ge):
+        scale = None if bool((ge == 1).all()) else ge.reshape(-1, 1, 1, 1)   # sum().backward() passes ones
+        out = []
+        for g, want, shape in zip(ctx.saved_tensors, ctx.needs_input_grad[:4], ctx.shapes):
+            if g is None or not want:
+                out.append(None)
+                continue
+            out.append((g if scale is None else g * scale.to(g.dtype)).sum_to_size(shape))
+        return (*out, *(None,) * 6)
 
 
 def pixel_losses(kd, r, ks, nl, nv, nh, vh, scale, y, wgt, ks_factor, l1) -> Tensor:

@@ -344,6 +344,24 @@ def _compact_data(g: GBuffer, index: Tensor, target: Tensor, weight, kind: str):
 _CHANNELS_FIRST = TensorMemo(4)
 
 
+def _normal_maps_native(maps: SVBRDF, g: GBuffer, target: Tensor, weight: Tensor, backend: str,
+                        chunk_views) -> bool:
+    """Whether :func:`shade_loss` runs :class:`~bayes_brdf.render.native.NativeNormalMapLoss`: normals per particle
+    or differentiated, on rectified views whose pixels are the texels (maps of the views' resolution or ``1 x 1``,
+    the normals full), point lights only (at most ``MAX_LIGHTS`` per view), no gradient w.r.t. the data, CPU."""
+    nrm = maps.normal
+    if backend == "eager" or chunk_views is not None or g.env is not None or (nrm.dim() == 3 and not nrm.requires_grad):
+        return False
+    hw = tuple(g.resolution)
+    if not g.aligned or g.texel is not None or tuple(nrm.shape[-2:]) != hw or \
+            any(tuple(t.shape[-2:]) not in (hw, (1, 1)) for t in (maps.albedo, maps.roughness, maps.specular)):
+        return False
+    if not 1 <= g.light_dir.shape[1] <= native.MAX_LIGHTS or target.requires_grad or weight.requires_grad:
+        return False
+    ts = (maps.albedo, maps.roughness, maps.specular, nrm)
+    return all(t.dtype == nrm.dtype and t.device == nrm.device for t in ts) and native.available(nrm, normal_maps=True)
+
+
 def channels_first(target: Tensor, device, dtype) -> Tensor:
     """Images ``[V, H, W, 3]`` as contiguous ``[V, 3, H, W]`` of ``dtype`` on ``device``: the kernels' layout.
 
@@ -436,10 +454,19 @@ def shade_loss(maps: SVBRDF, g: GBuffer, target: Tensor, weight: Tensor | float 
         yc, wc, const = _compact_data(g, index, target, weight, kind)
         loss = shade_loss(maps, c, yc, wc, kind=kind, ks_factor=ks_factor, eps=eps, backend=backend)
         return loss + const if const is not None else loss
-    n, g, chunks = _chunks(maps, g, eps, chunk_views, texel_space=backend != "eager")
     dev, dt = maps.albedo.device, maps.albedo.dtype
-    y = channels_first(target, dev, dt)
     wt = torch.as_tensor(weight, device=dev, dtype=dt)
+    if _normal_maps_native(maps, g, target, wt, backend, chunk_views):
+        # each particle its own normal map (decoded, or sampled): the native kernel makes the cosines per particle
+        gg = g if g.position.dtype == dt else g.to(dtype=dt)
+        geo = native.normal_map_geometry(gg.tangent, gg.bitangent, gg.normal, gg.view_dir, gg.light_dir,
+                                         gg.light_scale, eps)
+        wt = (wt.expand(V, h, w) if wt.dim() < 3 else wt)[:, None]
+        loss = native.NativeNormalMapLoss.apply(maps.albedo, maps.roughness, maps.specular, maps.normal, geo,
+                                                channels_first(target, dev, dt), wt, ks_factor, kind == "l1", eps)
+        return loss
+    n, g, chunks = _chunks(maps, g, eps, chunk_views, texel_space=backend != "eager")
+    y = channels_first(target, dev, dt)
     wt = (wt.expand(V, h, w) if wt.dim() < 3 else wt)[:, None]
     kernel = fused.get_loss_kernel(backend, n * V * h * w)
     total = 0.0
