@@ -217,7 +217,10 @@ class IntervalBijection:
         return self._t.inv
 
     def inverse_shape(self, shape):
-        return self._t.inverse_shape(shape)
+        # elementwise with scalar bounds: the value's own shape. (torch's AffineTransform broadcasts it with the
+        # bounds' shapes, which a value of the support already has, through torch.broadcast_shapes: that imports
+        # torch._refs and sympy, half a second of every command that builds a potential.)
+        return torch.Size(shape)
 
     def log_abs_det_jacobian(self, u, x):
         return self._t.log_abs_det_jacobian(u, x)

@@ -51,6 +51,7 @@ from torch import Tensor
 from torch.distributions import constraints
 
 from .. import checks
+from ..broadcast import broadcast_shapes
 from ..errors import InputError
 from ..optimize import Adam
 from .base import ObservedModel
@@ -88,7 +89,7 @@ class Flat(TorchDistribution):
 
     def log_prob(self, value):
         batch = value.shape[:value.dim() - len(self.event_shape)]
-        return value.new_zeros(torch.broadcast_shapes(batch, self.batch_shape))
+        return value.new_zeros(broadcast_shapes(batch, self.batch_shape))
 
 
 def weights_path(name) -> Path:

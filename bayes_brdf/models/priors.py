@@ -23,6 +23,7 @@ import torch
 from pyro.distributions import TorchDistribution
 from torch.distributions import constraints
 
+from ..broadcast import broadcast_shapes
 from ..errors import InputError
 
 
@@ -70,7 +71,7 @@ class Box(TorchDistribution):
 
     def log_prob(self, value):
         batch = value.shape[:value.dim() - len(self.event_shape)]
-        return self._logc.expand(torch.broadcast_shapes(batch, self.batch_shape))
+        return self._logc.expand(broadcast_shapes(batch, self.batch_shape))
 
 
 class TruncatedNormal(TorchDistribution):

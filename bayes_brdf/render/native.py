@@ -46,6 +46,9 @@ _DIR = Path(__file__).parent
 _LOCK = threading.Lock()
 _FUNCTIONS: dict = {}
 _FAILED: set = set()
+_REALS = {torch.float32: "float", torch.float64: "double"}
+_KERNELS_SRC, _TEXELS_SRC, _NORMAL_MAPS_SRC = (_DIR / f for f in ("_native_kernels.c", "_native_texels.c",
+                                                                  "_native_normal_maps.c"))
 MODE_IMAGE_FWD, MODE_IMAGE_BWD, MODE_LOSS, MODE_PIXEL_LOSS = 0, 1, 2, 3
 MAX_LIGHTS = 4  # LMAX in the C sources
 
@@ -91,11 +94,16 @@ def native_function(src_path: Path, symbol: str, dtype: torch.dtype, argtypes, r
     """The ctypes function ``symbol`` of ``src_path`` built for ``dtype`` (float32/float64), or ``None`` when
     native kernels are unavailable (``BAYES_BRDF_NO_NATIVE``, no compiler, another dtype). A failed build
     warns once, naming ``fallback`` (what runs instead), and is not retried."""
-    real = {torch.float32: "float", torch.float64: "double"}.get(dtype)
-    src_path = Path(src_path)
-    if real is None or os.environ.get("BAYES_BRDF_NO_NATIVE") or src_path in _FAILED:
+    real = _REALS.get(dtype)
+    if real is None or os.environ.get("BAYES_BRDF_NO_NATIVE"):
         return None
     key = (src_path, symbol, real, tuple(extra_flags))
+    fn = _FUNCTIONS.get(key)    # the hot path: every kernel call looks its function up (no Path made, no lock)
+    if fn is not None:
+        return fn
+    src_path = Path(src_path)
+    if src_path in _FAILED:
+        return None
     with _LOCK:
         if key not in _FUNCTIONS:
             try:
@@ -115,14 +123,14 @@ def native_function(src_path: Path, symbol: str, dtype: torch.dtype, argtypes, r
 
 def _lib(dtype: torch.dtype):
     """The pixel kernel for ``dtype``, or ``None`` when native kernels are unavailable."""
-    return native_function(_DIR / "_native_kernels.c", "bb_shade", dtype,
+    return native_function(_KERNELS_SRC, "bb_shade", dtype,
                            [ctypes.c_int64] * 10 + [ctypes.c_void_p] * 16, fallback="torch.compile kernels")
 
 
 def _texel_lib(dtype: torch.dtype, lanes: int = 8):
     """The texel kernel for ``dtype`` with ``lanes`` particles per vector (8 or 16), or ``None`` when native
     kernels are unavailable."""
-    return native_function(_DIR / "_native_texels.c", "bb_shade_texels", dtype,
+    return native_function(_TEXELS_SRC, "bb_shade_texels", dtype,
                            [ctypes.c_int64] * 12 + [ctypes.c_void_p] * 24 + [ctypes.c_int64, ctypes.c_double,
                                                                                ctypes.c_double], restype=ctypes.c_int,
                            extra_flags=() if lanes == 8 else (f"-DLANES={lanes}",), fallback="sparse torch lookups")
@@ -130,7 +138,7 @@ def _texel_lib(dtype: torch.dtype, lanes: int = 8):
 
 def _normal_maps_lib(dtype: torch.dtype):
     """The per-particle-normals loss kernel for ``dtype``, or ``None`` when native kernels are unavailable."""
-    return native_function(_DIR / "_native_normal_maps.c", "bb_shade_normal_maps", dtype,
+    return native_function(_NORMAL_MAPS_SRC, "bb_shade_normal_maps", dtype,
                            [ctypes.c_int64] * 9 + [ctypes.c_double] + [ctypes.c_void_p] * 17,
                            fallback="eager torch shading")
 
@@ -143,7 +151,7 @@ def texel_lanes(dtype: torch.dtype, n: int) -> int:
     lib = _texel_lib(dtype)
     if lib is None or dtype != torch.float32 or -(-n // 16) >= -(-n // 8) or transfer.NODES + 2 > 32:
         return 8
-    width = native_function(_DIR / "_native_texels.c", "bb_texel_vector_bytes", dtype, [], restype=ctypes.c_int64)
+    width = native_function(_TEXELS_SRC, "bb_texel_vector_bytes", dtype, [], restype=ctypes.c_int64)
     return 16 if width is not None and width() >= 64 else 8
 
 

@@ -35,6 +35,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
+from ..broadcast import broadcast_shapes
 from ..errors import InputError
 from .brdf import fresnel_weight
 from .environment import LUMINANCE as LUMA
@@ -335,9 +336,9 @@ def interpolate(env: Tensor, r: Tensor) -> tuple[Tensor, Tensor, Tensor]:
     i = torch.floor(s).clamp(max=NODES - 2)
     x = s - i
     tab = env[..., 3:, :, :]
-    shape = torch.broadcast_shapes(tab.shape[:-3], r.shape[:-3])
+    shape = broadcast_shapes(tab.shape[:-3], r.shape[:-3])
     tab = tab.expand(*shape, *tab.shape[-3:]).unflatten(-3, (NODES + 2, 6))        # [..., slots, 6, H, W]
-    hw = torch.broadcast_shapes(tab.shape[-2:], r.shape[-2:])
+    hw = broadcast_shapes(tab.shape[-2:], r.shape[-2:])
     tab = tab.expand(*tab.shape[:-2], *hw)
     ii = i.long().expand(*shape, 1, *hw)
     acc = 0.0

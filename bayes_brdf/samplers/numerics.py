@@ -6,6 +6,7 @@ Plain functions of tensors and numbers; a sampler keeps what they carry from ste
 from __future__ import annotations
 
 import math
+from pathlib import Path
 from typing import NamedTuple
 
 import torch
@@ -83,6 +84,7 @@ def standard_normal(shape, generator: torch.Generator, dtype: torch.dtype) -> Te
     return out
 
 
+_NORMAL_SRC = Path(__file__).parent / "_native_normal.c"
 _PHILOX_M = (0xD2511F53, 0xCD9E8D57)
 _PHILOX_W = (0x9E3779B9, 0xBB67AE85)
 _MASK = 0xFFFFFFFF
@@ -124,9 +126,8 @@ def philox_normal(seed: int, shape, dtype: torch.dtype = torch.float32, device=N
 
 def _native_normal(dtype):
     import ctypes
-    from pathlib import Path
 
     from ..render.native import native_function
-    return native_function(Path(__file__).parent / "_native_normal.c", "bb_normal", dtype,
+    return native_function(_NORMAL_SRC, "bb_normal", dtype,
                            [ctypes.c_uint64, ctypes.c_int64, ctypes.c_int64, ctypes.c_void_p],
                            extra_flags=("-ffast-math",), fallback="torch.randn")

@@ -87,6 +87,8 @@ from .kernels import kernel_apply, rbf_matrix, rbf_median
 from .numerics import Preconditioner, anneal, precond_init, precond_update, standard_normal
 from .texel_moves import texel_move
 
+_SPOS_SRC = Path(__file__).parent / "_native_spos.c"
+
 
 class SPOSState(NamedTuple):
     z: Tensor
@@ -239,7 +241,7 @@ def _native_update(dtype):
     """The fused native SPOS update for ``dtype`` (float32/float64), or ``None`` (no compiler,
     ``BAYES_BRDF_NO_NATIVE``): then the torch update runs."""
     i64, dbl, vp = ctypes.c_int64, ctypes.c_double, ctypes.c_void_p
-    return native_function(Path(__file__).parent / "_native_spos.c", "bb_spos_update", dtype,
+    return native_function(_SPOS_SRC, "bb_spos_update", dtype,
                            [i64] * 4 + [vp] * 11 + [i64] * 4 + [dbl] * 8)
 
 
