@@ -9,8 +9,10 @@ The capture is ``../shared/data/captures/card_blue`` (as ``bayes-brdf fit ... --
 loads it). Rows: ``fast`` is :meth:`Synthesis.forward <bayes_brdf.models.stylegan.Synthesis.forward>` (what the model
 runs), ``reference`` is :meth:`Synthesis.reference` (the straightforward implementation the tests compare against);
 both are timed in the same process, in turn each round (medians; ratio = reference / fast per round). Printed:
-``Potential.value_and_grad`` of all particles, one ``spos`` step, the generator's forward+backward alone, and the
-projection's single-row ``value_and_grad`` (``project_steps`` of them start a fit). The header gives the thread count
+``Potential.value_and_grad`` of all particles, one ``spos`` step, the generator's forward+backward alone, the
+shading loss of the decoded maps with its gradients (a normal map per particle: the native per-particle-normals
+kernel since 2026-12-07, eager torch before), and the projection's single-row ``value_and_grad`` (``project_steps``
+of them start a fit). The header gives the thread count
 and the load average, which moves these numbers on a shared machine.
 """
 from __future__ import annotations
@@ -30,6 +32,8 @@ from bayes_brdf.models import ModelData
 from bayes_brdf.models import stylegan
 from bayes_brdf.potential import Potential
 from bayes_brdf.presets import load_preset
+from bayes_brdf.render import SVBRDF
+from bayes_brdf.render.shade import shade_loss
 from bayes_brdf.samplers import SAMPLERS, make_sampler
 
 try:
@@ -84,11 +88,21 @@ def main(argv=None):
         y = gen(w, model.split_noise(nz))
         y.backward(torch.ones_like(y))
 
+    data = pot.args[0]
+    maps = model.maps({"w_plus": w.detach(), "noise": nz.detach()})
+    leaves = [t.detach().clone().requires_grad_(True) for t in (maps.albedo, maps.roughness, maps.specular,
+                                                                 maps.normal)]
+
+    def shading_fb():          # the likelihood's shading of the decoded maps, normals per particle: loss and gradients
+        e = shade_loss(SVBRDF(*leaves), data.gbuffer, data.images, data.noise_weight("laplace"), kind="l1")
+        e.sum().backward()
+
     z1 = z[:1].clone()
     rows = {
         "value_and_grad": lambda: pot.value_and_grad(z),
         "spos step": lambda: sampler.step(state, 0, pot, rng),
         "generator fwd+bwd": gen_fb,
+        "shading loss fwd+bwd": shading_fb,
         "projection v&g (1 row)": lambda: pot.value_and_grad(z1, jacobian=False),
     }
     load = os.getloadavg()

@@ -27,9 +27,8 @@
 #include <stdint.h>
 
 #include "_native_brdf.h"
+#include "_native_pixel_block.h"
 
-#define BLK 64
-#define LMAX 4 /* lights per view (the caller checks) */
 #define MODE_IMAGE_FWD 0
 #define MODE_IMAGE_BWD 1
 #define MODE_LOSS 2
@@ -143,19 +142,7 @@ static inline void block(const struct args *restrict q, const int64_t i, const i
     const int64_t p0 = b * BLK;
     const int64_t m = (P - p0) < BLK ? (P - p0) : BLK;
     const int64_t flags = q->flags;
-    /* a constant map: its particle's values repeated over the block (the loops below stay one shape) */
-    REAL ckd[3][BLK], cks[3][BLK], cr[BLK];
-    if (flags & 1)
-        for (int c = 0; c < 3; c++) for (int64_t j = 0; j < BLK; j++) ckd[c][j] = q->kd[i * 3 + c];
-    if (flags & 2)
-        for (int64_t j = 0; j < BLK; j++) cr[j] = q->r[i];
-    if (flags & 4)
-        for (int c = 0; c < 3; c++) for (int64_t j = 0; j < BLK; j++) cks[c][j] = q->ks[i * 3 + c];
-    const REAL *restrict KD0 = (flags & 1) ? ckd[0] : q->kd + i * 3 * P + p0;
-    const REAL *restrict KD1 = (flags & 1) ? ckd[1] : KD0 + P, *restrict KD2 = (flags & 1) ? ckd[2] : KD0 + 2 * P;
-    const REAL *restrict KS0 = (flags & 4) ? cks[0] : q->ks + i * 3 * P + p0;
-    const REAL *restrict KS1 = (flags & 4) ? cks[1] : KS0 + P, *restrict KS2 = (flags & 4) ? cks[2] : KS0 + 2 * P;
-    const REAL *restrict R = (flags & 2) ? cr : q->r + i * P + p0;
+    BB_BLOCK_MAPS(q->kd, q->r, q->ks, i, P, p0, flags);
     /* constant specular: its three values as scalars (the one-light loops); cks_dead: and its gradient unwanted */
     const REAL ks0 = (flags & 4) ? q->ks[i * 3] : 0, ks1 = (flags & 4) ? q->ks[i * 3 + 1] : 0,
                ks2 = (flags & 4) ? q->ks[i * 3 + 2] : 0;
@@ -241,22 +228,9 @@ static inline void block(const struct args *restrict q, const int64_t i, const i
         q->epart[i * q->nb + b] = sum;
     }
     if (!grad) return;
-    const REAL *acc[7] = {akd0, akd1, akd2, ar, aks0, aks1, aks2};
-    REAL *dst[3] = {q->gkd, q->gr, q->gks};
-    for (int k = 0, a = 0; k < 3; k++) {
-        const int c = k == 1 ? 1 : 3;
-        if (flags & (8 << k)) { a += c; continue; }          /* not wanted */
-        for (int ch = 0; ch < c; ch++, a++) {
-            if (flags & (1 << k)) {                          /* constant: this block's partial sum */
-                REAL sum = 0;
-                for (int64_t j = 0; j < m; j++) sum += acc[a][j];
-                dst[k][(i * c + ch) * q->nb + b] = sum;
-            } else {
-                REAL *G = dst[k] + (i * c + ch) * P + p0;
-                for (int64_t j = 0; j < m; j++) G[j] = acc[a][j];
-            }
-        }
-    }
+    const REAL *const acc[7] = {akd0, akd1, akd2, ar, aks0, aks1, aks2};
+    REAL *const dst[3] = {q->gkd, q->gr, q->gks};
+    bb_store_map_grads(acc, dst, flags, i, b, q->nb, P, p0, m);
 }
 
 void bb_shade(int64_t mode, int64_t n, int64_t V, int64_t L, int64_t P, int64_t ks_factor, int64_t l2,

@@ -29,14 +29,21 @@
 #include <stdint.h>
 
 #include "_native_brdf.h"
+#include "_native_pixel_block.h"
 
-#define BLK 64
-#define LMAX 4 /* lights per view (the caller checks) */
 #define NORM_FLOOR ((REAL)1e-30)
 
 #define ABS(x) ((x) < 0 ? -(x) : (x))
 #define SIGN(x) ((REAL)(((x) > 0) - ((x) < 0)))
 #define SQRT(x) _Generic((x), float: sqrtf, default: sqrt)(x)
+
+/* Declares view-and-light vl's rows over the block: the light's direction LX..LZ, the half vector HX..HZ, the
+ * Fresnel weight W, the light's scale per channel C0..C2 */
+#define LIGHT_ROWS(vl) \
+    const REAL *restrict LX = q->ld + (vl) * 3 * P + p0, *restrict LY = LX + P, *restrict LZ = LX + 2 * P; \
+    const REAL *restrict HX = q->hd + (vl) * 3 * P + p0, *restrict HY = HX + P, *restrict HZ = HX + 2 * P; \
+    const REAL *restrict W = q->w + (vl) * P + p0; \
+    const REAL *restrict C0 = q->scale + (vl) * 3 * P + p0, *restrict C1 = C0 + P, *restrict C2 = C0 + 2 * P
 
 struct nargs {
     int64_t n, V, L, P, l2, grad, nb, flags;
@@ -52,18 +59,7 @@ static inline void nblock(const struct nargs *restrict q, const int64_t i, const
     const REAL kf = q->kf, eps = q->eps;
     const int64_t p0 = b * BLK;
     const int64_t m = (P - p0) < BLK ? (P - p0) : BLK;
-    REAL ckd[3][BLK], cks[3][BLK], cr[BLK];   /* a constant map's values repeated over the block */
-    if (flags & 1)
-        for (int c = 0; c < 3; c++) for (int64_t j = 0; j < BLK; j++) ckd[c][j] = q->kd[i * 3 + c];
-    if (flags & 2)
-        for (int64_t j = 0; j < BLK; j++) cr[j] = q->r[i];
-    if (flags & 4)
-        for (int c = 0; c < 3; c++) for (int64_t j = 0; j < BLK; j++) cks[c][j] = q->ks[i * 3 + c];
-    const REAL *restrict KD0 = (flags & 1) ? ckd[0] : q->kd + i * 3 * P + p0;
-    const REAL *restrict KD1 = (flags & 1) ? ckd[1] : KD0 + P, *restrict KD2 = (flags & 1) ? ckd[2] : KD0 + 2 * P;
-    const REAL *restrict KS0 = (flags & 4) ? cks[0] : q->ks + i * 3 * P + p0;
-    const REAL *restrict KS1 = (flags & 4) ? cks[1] : KS0 + P, *restrict KS2 = (flags & 4) ? cks[2] : KS0 + 2 * P;
-    const REAL *restrict R = (flags & 2) ? cr : q->r + i * P + p0;
+    BB_BLOCK_MAPS(q->kd, q->r, q->ks, i, P, p0, flags);
     const REAL *restrict NX = q->nt + i * 3 * P + p0, *restrict NY = NX + P, *restrict NZ = NX + 2 * P;
 
     REAL akd0[BLK] = {0}, akd1[BLK] = {0}, akd2[BLK] = {0}, aks0[BLK] = {0}, aks1[BLK] = {0},
@@ -91,11 +87,7 @@ static inline void nblock(const struct nargs *restrict q, const int64_t i, const
         }
         for (int64_t j = 0; j < BLK; j++) o0[j] = o1[j] = o2[j] = 0;
         for (int64_t l = 0; l < L; l++) {
-            const int64_t vl = v * L + l;
-            const REAL *restrict LX = q->ld + vl * 3 * P + p0, *restrict LY = LX + P, *restrict LZ = LX + 2 * P;
-            const REAL *restrict HX = q->hd + vl * 3 * P + p0, *restrict HY = HX + P, *restrict HZ = HX + 2 * P;
-            const REAL *restrict W = q->w + vl * P + p0;
-            const REAL *restrict C0 = q->scale + vl * 3 * P + p0, *restrict C1 = C0 + P, *restrict C2 = C0 + 2 * P;
+            LIGHT_ROWS(v * L + l);
             REAL *restrict SS = sS[l], *restrict SD = sD[l], *restrict CL = cl[l], *restrict CH = ch[l],
                  *restrict ML = ml[l], *restrict MH = mh[l];
 #pragma omp simd
@@ -131,11 +123,7 @@ static inline void nblock(const struct nargs *restrict q, const int64_t i, const
         if (!grad) continue;
         REAL gwx[BLK] = {0}, gwy[BLK] = {0}, gwz[BLK] = {0}, gnv[BLK] = {0};   /* d e / d n_w, d e / d(n.v) */
         for (int64_t l = 0; l < L; l++) {
-            const int64_t vl = v * L + l;
-            const REAL *restrict LX = q->ld + vl * 3 * P + p0, *restrict LY = LX + P, *restrict LZ = LX + 2 * P;
-            const REAL *restrict HX = q->hd + vl * 3 * P + p0, *restrict HY = HX + P, *restrict HZ = HX + 2 * P;
-            const REAL *restrict W = q->w + vl * P + p0;
-            const REAL *restrict C0 = q->scale + vl * 3 * P + p0, *restrict C1 = C0 + P, *restrict C2 = C0 + 2 * P;
+            LIGHT_ROWS(v * L + l);
             const REAL *restrict SS = sS[l], *restrict SD = sD[l], *restrict CL = cl[l], *restrict CH = ch[l],
                        *restrict ML = ml[l], *restrict MH = mh[l];
 #pragma omp simd
@@ -180,22 +168,9 @@ static inline void nblock(const struct nargs *restrict q, const int64_t i, const
         q->epart[i * q->nb + b] = sum;
     }
     if (!grad) return;
-    const REAL *acc[7] = {akd0, akd1, akd2, ar, aks0, aks1, aks2};
-    REAL *dst[3] = {q->gkd, q->gr, q->gks};
-    for (int k = 0, a = 0; k < 3; k++) {
-        const int c = k == 1 ? 1 : 3;
-        if (flags & (8 << k)) { a += c; continue; }          /* not wanted */
-        for (int ch_ = 0; ch_ < c; ch_++, a++) {
-            if (flags & (1 << k)) {                          /* constant: this block's partial sum */
-                REAL sum = 0;
-                for (int64_t j = 0; j < m; j++) sum += acc[a][j];
-                dst[k][(i * c + ch_) * q->nb + b] = sum;
-            } else {
-                REAL *G = dst[k] + (i * c + ch_) * P + p0;
-                for (int64_t j = 0; j < m; j++) G[j] = acc[a][j];
-            }
-        }
-    }
+    const REAL *const acc[7] = {akd0, akd1, akd2, ar, aks0, aks1, aks2};
+    REAL *const dst[3] = {q->gkd, q->gr, q->gks};
+    bb_store_map_grads(acc, dst, flags, i, b, q->nb, P, p0, m);
     if (!(flags & 64)) {
         REAL *G = q->gn + i * 3 * P + p0;
         for (int64_t j = 0; j < m; j++) { G[j] = gtx[j]; G[P + j] = gty[j]; G[2 * P + j] = gtz[j]; }
