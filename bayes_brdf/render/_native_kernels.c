@@ -222,15 +222,9 @@ static inline void block(const struct args *restrict q, const int64_t i, const i
         for (int64_t j = 0; j < m; j++) { OUT[j] = px0[j]; OUT[P + j] = px1[j]; OUT[2 * P + j] = px2[j]; }
         return;
     }
-    if (mode == MODE_LOSS) {
-        double sum = 0;
-        for (int64_t j = 0; j < m; j++) sum += e[j];
-        q->epart[i * q->nb + b] = sum;
-    }
-    if (!grad) return;
     const REAL *const acc[7] = {akd0, akd1, akd2, ar, aks0, aks1, aks2};
     REAL *const dst[3] = {q->gkd, q->gr, q->gks};
-    bb_store_map_grads(acc, dst, flags, i, b, q->nb, P, p0, m);
+    bb_store_block(mode == MODE_LOSS ? q->epart : 0, e, grad, acc, dst, flags, i, b, q->nb, P, p0, m);
 }
 
 void bb_shade(int64_t mode, int64_t n, int64_t V, int64_t L, int64_t P, int64_t ks_factor, int64_t l2,

@@ -162,15 +162,10 @@ static inline void nblock(const struct nargs *restrict q, const int64_t i, const
             gtz[j] += F[6 * P + j] * rx + F[7 * P + j] * ry + F[8 * P + j] * rz;
         }
     }
-    {
-        double sum = 0;
-        for (int64_t j = 0; j < m; j++) sum += e[j];
-        q->epart[i * q->nb + b] = sum;
-    }
-    if (!grad) return;
     const REAL *const acc[7] = {akd0, akd1, akd2, ar, aks0, aks1, aks2};
     REAL *const dst[3] = {q->gkd, q->gr, q->gks};
-    bb_store_map_grads(acc, dst, flags, i, b, q->nb, P, p0, m);
+    bb_store_block(q->epart, e, grad, acc, dst, flags, i, b, q->nb, P, p0, m);
+    if (!grad) return;
     if (!(flags & 64)) {
         REAL *G = q->gn + i * 3 * P + p0;
         for (int64_t j = 0; j < m; j++) { G[j] = gtx[j]; G[P + j] = gty[j]; G[2 * P + j] = gtz[j]; }

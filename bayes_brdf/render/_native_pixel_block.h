@@ -1,6 +1,6 @@
 /* What the two kernels over pixel blocks share (_native_kernels.c: cosines shared by the particles;
  * _native_normal_maps.c: a normal map per particle): the block size, a block's map pointers, and the write-out of
- * a (block, particle)'s map gradients.
+ * a (block, particle)'s energy and map gradients.
  *
  * Maps: kd, ks [n, 3, P], r [n, P]; flags bit k (kd 1, r 2, ks 4): map k is constant, one value per particle and
  * channel; bit 3 + k: its gradient is not wanted.
@@ -29,12 +29,20 @@
     const REAL *restrict KS1 = ((flags) & 4) ? cks[1] : KS0 + (P), *restrict KS2 = ((flags) & 4) ? cks[2] : KS0 + 2 * (P); \
     const REAL *restrict R = ((flags) & 2) ? cr : (r_) + (i) * (P) + (p0)
 
-/* A (block b, particle i)'s map gradients acc = {kd x3, r, ks x3} over its m pixels from p0 into dst = {gkd, gr,
- * gks}: a full map's into [n, c, P], a constant map's as this block's partial sum into [n, c, nb] (the caller sums
- * them: no thread writes another's), an unwanted one not at all */
-static inline void bb_store_map_grads(const REAL *const acc[7], REAL *const dst[3], int64_t flags, int64_t i,
-                                      int64_t b, int64_t nb, int64_t P, int64_t p0, int64_t m)
+/* A (block b, particle i)'s outputs over its m pixels from p0: with epart, the sum of its energies e into
+ * epart[i, b]; with grad, its map gradients acc = {kd x3, r, ks x3} into dst = {gkd, gr, gks}: a full map's into
+ * [n, c, P], a constant map's as this block's partial sum into [n, c, nb] (the caller sums them: no thread writes
+ * another's), an unwanted one not at all */
+static inline void bb_store_block(double *epart, const REAL *e, int64_t grad, const REAL *const acc[7],
+                                  REAL *const dst[3], int64_t flags, int64_t i, int64_t b, int64_t nb, int64_t P,
+                                  int64_t p0, int64_t m)
 {
+    if (epart) {
+        double sum = 0;
+        for (int64_t j = 0; j < m; j++) sum += e[j];
+        epart[i * nb + b] = sum;
+    }
+    if (!grad) return;
     for (int k = 0, a = 0; k < 3; k++) {
         const int c = k == 1 ? 1 : 3;
         if (flags & (8 << k)) { a += c; continue; }          /* not wanted */

@@ -167,6 +167,24 @@ def ptr(t: Tensor | None):
     return None if t is None else ctypes.c_void_p(t.data_ptr())
 
 
+def _map_flags(maps, extent: int, no_grad) -> tuple[list, int]:
+    """Which of the kernel maps ``(kd, r, ks)`` are constant (one value per particle: last dimension 1 while a full
+    map has ``extent``) and the kernels' flags: bit k a constant map k, bit 3 + k map k's gradient not wanted."""
+    const = [m.shape[-1] == 1 and extent > 1 for m in maps]
+    return const, sum(1 << k for k, c in enumerate(const) if c) + sum(8 << k for k, f in enumerate(no_grad) if f)
+
+
+def _block_grads(maps, const, no_grad, grad: bool, nb: int) -> list:
+    """The pixel-block kernels' gradient outputs: shaped like the map, or for a constant map its per-block partial
+    sums ``[n, c, nb]`` (:func:`_summed_blocks` adds them); ``None`` where not wanted."""
+    return [None if f or not grad else torch.empty(*m.shape[:-1], nb, dtype=m.dtype) if c else torch.empty_like(m)
+            for m, c, f in zip(maps, const, no_grad)]
+
+
+def _summed_blocks(grads, const) -> list:
+    return [g.sum(-1, keepdim=True) if g is not None and c else g for g, c in zip(grads, const)]
+
+
 def _call(mode, maps, geo, ks_factor, *, y=None, wgt=None, gout=None, l2=False, need_grad=False, taps=None,
           no_grad=(False, False, False), env=None):
     """Run a kernel. ``maps = (kd [n,3,P], r [n,P], ks [n,3,P])``, ``geo = (nl, nv, nh2, w, A)``; with
@@ -187,18 +205,14 @@ def _call(mode, maps, geo, ks_factor, *, y=None, wgt=None, gout=None, l2=False, 
         torch.empty(n, 3, P, dtype=dt) if mode == MODE_PIXEL_LOSS else None
     nt = torch.get_num_threads()
     extent = P if taps is None else max(m.shape[-1] for m in maps)      # values per channel of a full map
-    const = [m.shape[-1] == 1 and extent > 1 for m in maps]
-    flags = sum(1 << k for k, c in enumerate(const) if c) + sum(8 << k for k, f in enumerate(no_grad) if f)
+    const, flags = _map_flags(maps, extent, no_grad)
     if taps is None:
         nb = (P + 63) // 64
         epart = torch.empty(n, nb, dtype=torch.float64) if mode == MODE_LOSS else None
-        # a constant map's gradient comes as per-block partial sums [n, c, blocks], summed here
-        grads = [None if f or not grad else torch.empty(*m.shape[:-1], nb, dtype=dt) if c else torch.empty_like(m)
-                 for m, c, f in zip(maps, const, no_grad)]
+        grads = _block_grads(maps, const, no_grad, grad, nb)
         _lib(dt)(mode, n, V, L, P, int(ks_factor), int(l2), int(need_grad), nt, flags,
                  *map(ptr, (kd, r, ks, nl, nv, nh2, w, amp, y, wgt, gout, out, epart, *grads)))
-        grads = [g.sum(-1, keepdim=True) if g is not None and c else g for g, c in zip(grads, const)]
-        return out, epart, grads
+        return out, epart, _summed_blocks(grads, const)
     if mode == MODE_PIXEL_LOSS:
         raise ValueError("per-pixel losses are computed by the pixel kernel only (no taps)")
     T = extent
@@ -247,11 +261,14 @@ def prepare(kd, r, ks, nl, nv, nh, vh, scale, hw, texels=None):
     """Kernel inputs from the shading tensors (see :mod:`.fused` for their shapes); with ``texels = (Ht, Wt)``
     the maps are texel maps of that size (or ``1 x 1``), read through taps."""
     n = max(kd.shape[0], r.shape[0], ks.shape[0])
-    h, w_ = texels or hw
-    # a 1x1 constant stays one value (the kernels flag it), other maps are full [n, c, P]
-    full = lambda t, c: t if tuple(t.shape[-2:]) == (1, 1) else t.expand(t.shape[0], 1, c, h, w_)  # noqa: E731
-    maps = (_flat(full(kd, 3), n, 3), _flat(full(r, 1), n, 1)[:, 0], _flat(full(ks, 3), n, 3))
-    return n, maps, _geometry(nl, nv, nh, vh, scale)
+    return n, kernel_maps(kd, r, ks, n, texels or hw), _geometry(nl, nv, nh, vh, scale)
+
+
+def kernel_maps(kd, r, ks, n: int, hw) -> tuple:
+    """Looked-up maps ``[n', 1, c, H, W]`` (``H x W = hw``, or ``1 x 1``) in the kernels' layout: ``kd, ks
+    [n, 3, P]``, ``r [n, P]``; a ``1 x 1`` constant stays one value, ``[n, 3, 1]``, ``[n, 1]`` (the kernels flag it)."""
+    full = lambda t, c: t if tuple(t.shape[-2:]) == (1, 1) else t.expand(t.shape[0], 1, c, *hw)  # noqa: E731
+    return _flat(full(kd, 3), n, 3), _flat(full(r, 1), n, 1)[:, 0], _flat(full(ks, 3), n, 3)
 
 
 _ENV: OrderedDict = OrderedDict()
@@ -362,14 +379,6 @@ def normal_map_geometry(tangent, bitangent, normal, view_dir, light_dir, light_s
     return _NORMAL_GEO.get((tangent, bitangent, normal, view_dir, light_dir, light_scale), (eps,), make)
 
 
-def _rows(t: Tensor, n: int, c: int, hw) -> Tensor:
-    """A map ``[n', c, H, W]`` or ``[c, H, W]`` (``H x W`` the pixels', or ``1 x 1``) as contiguous ``[n, c, P]``
-    (``[n, c, 1]`` for a constant)."""
-    t = t if t.dim() == 4 else t[None]
-    size = (1, 1) if tuple(t.shape[-2:]) == (1, 1) else tuple(hw)
-    return t.expand(n, c, *size).reshape(n, c, -1).contiguous()
-
-
 class NativeNormalMapLoss(torch.autograd.Function):
     """Per-particle loss ``[n]`` of views whose pixels are the texels, each particle with its own normal map
     (``kd, ks [n', 3, H, W]``, ``r [n', 1, H, W]``, ``normal [n', 3, H, W]``, each also ``[C, H, W]`` or ``1 x 1``
@@ -381,26 +390,26 @@ class NativeNormalMapLoss(torch.autograd.Function):
         frame, vd, ld, hd, w, scale = geo
         V, L, _, P = ld.shape
         hw = y.shape[-2:]
-        n = max(t.shape[0] if t.dim() == 4 else 1 for t in (kd, r, ks, normal))
-        maps = [_rows(kd, n, 3, hw), _rows(r, n, 1, hw)[:, 0], _rows(ks, n, 3, hw)]
-        nt = _rows(normal, n, 3, hw)
+        looked = [texel_maps(t) for t in (kd, r, ks, normal)]          # [n', 1, c, H, W]: the kernels' input shape
+        n = max(t.shape[0] for t in looked)
+        maps = kernel_maps(*looked[:3], n, hw)
+        nt = _flat(looked[3], n, 3)
         want = ctx.needs_input_grad[:4]
         grad = any(want)
-        const = [m.shape[-1] == 1 and P > 1 for m in maps]
-        flags = sum(1 << k for k, c in enumerate(const) if c) + sum(8 << k for k, f in enumerate(want[:3]) if not f) \
-            + (0 if want[3] else 64)
+        no_grad = [not f for f in want[:3]]
+        const, flags = _map_flags(maps, P, no_grad)
+        flags += 0 if want[3] else 64
         nb = (P + 63) // 64
         dt = nt.dtype
         epart = torch.empty(n, nb, dtype=torch.float64)
-        grads = [None if not (grad and f) else torch.empty(*m.shape[:-1], nb, dtype=dt) if c else torch.empty_like(m)
-                 for m, c, f in zip(maps, const, want[:3])]
+        grads = _block_grads(maps, const, no_grad, grad, nb)
         gn = torch.empty_like(nt) if grad and want[3] else None
         yy = y.reshape(V, 3, P).contiguous()
         ww = wgt.expand(V, 1, *hw).reshape(V, P).contiguous()
         _normal_maps_lib(dt)(n, V, L, P, int(ks_factor), int(not l1), int(grad), torch.get_num_threads(), flags,
                              float(eps), *map(ptr, (*maps, nt, frame, vd, ld, hd, w, scale, yy, ww, epart, *grads, gn)))
         if grad:       # per particle [n, c, H, W] (or [n, c, 1, 1]): scaled by the upstream gradient, then summed
-            grads = [g.sum(-1, keepdim=True) if g is not None and c else g for g, c in zip(grads, const)]
+            grads = _summed_blocks(grads, const)
             sizes = [(1, 1) if tuple(s.shape[-2:]) == (1, 1) else tuple(hw) for s in (kd, r, ks, normal)]
             ctx.save_for_backward(*(None if g is None else g.reshape(n, -1, *z) for g, z in zip((*grads, gn), sizes)))
         ctx.shapes = (kd.shape, r.shape, ks.shape, normal.shape)

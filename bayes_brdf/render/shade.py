@@ -456,18 +456,16 @@ def shade_loss(maps: SVBRDF, g: GBuffer, target: Tensor, weight: Tensor | float 
         return loss + const if const is not None else loss
     dev, dt = maps.albedo.device, maps.albedo.dtype
     wt = torch.as_tensor(weight, device=dev, dtype=dt)
+    wt = (wt.expand(V, h, w) if wt.dim() < 3 else wt)[:, None]
+    y = channels_first(target, dev, dt)
     if _normal_maps_native(maps, g, target, wt, backend, chunk_views):
         # each particle its own normal map (decoded, or sampled): the native kernel makes the cosines per particle
         gg = g if g.position.dtype == dt else g.to(dtype=dt)
         geo = native.normal_map_geometry(gg.tangent, gg.bitangent, gg.normal, gg.view_dir, gg.light_dir,
                                          gg.light_scale, eps)
-        wt = (wt.expand(V, h, w) if wt.dim() < 3 else wt)[:, None]
-        loss = native.NativeNormalMapLoss.apply(maps.albedo, maps.roughness, maps.specular, maps.normal, geo,
-                                                channels_first(target, dev, dt), wt, ks_factor, kind == "l1", eps)
-        return loss
+        return native.NativeNormalMapLoss.apply(maps.albedo, maps.roughness, maps.specular, maps.normal, geo, y, wt,
+                                                ks_factor, kind == "l1", eps)
     n, g, chunks = _chunks(maps, g, eps, chunk_views, texel_space=backend != "eager")
-    y = channels_first(target, dev, dt)
-    wt = (wt.expand(V, h, w) if wt.dim() < 3 else wt)[:, None]
     kernel = fused.get_loss_kernel(backend, n * V * h * w)
     total = 0.0
     for s, e, args, tp, env in chunks:
