@@ -133,14 +133,16 @@ struct args {
     REAL *out; double *epart; REAL *gkd, *gr, *gks;
 };
 
-static inline void block(const struct args *restrict q, const int64_t i, const int64_t b)
+/* Particle i over block b's m pixels. Inlined into bb_shade twice, so that a full block's loops have a constant
+ * trip count (measured 4-10 % faster than a variable one) */
+static inline __attribute__((always_inline)) void block(const struct args *restrict q, const int64_t i, const int64_t b,
+                                                       const int64_t m)
 {
     const int64_t mode = q->mode, V = q->V, L = q->L, P = q->P, l2 = q->l2, grad = q->grad;
     const REAL kf = q->kf;
     const REAL *restrict nl = q->nl, *restrict nv = q->nv, *restrict nh2 = q->nh2, *restrict w = q->w,
                *restrict amp = q->amp, *restrict y = q->y, *restrict wgt = q->wgt, *restrict gout = q->gout;
     const int64_t p0 = b * BLK;
-    const int64_t m = (P - p0) < BLK ? (P - p0) : BLK;
     const int64_t flags = q->flags;
     BB_BLOCK_MAPS(q->kd, q->r, q->ks, i, P, p0, flags);
     /* constant specular: its three values as scalars (the one-light loops); cks_dead: and its gradient unwanted */
@@ -241,6 +243,14 @@ void bb_shade(int64_t mode, int64_t n, int64_t V, int64_t L, int64_t P, int64_t 
     const int64_t nb = q.nb;
     /* blocks outside, particles inside: a block's geometry (all views) stays in cache across particles */
 #pragma omp parallel for schedule(static) num_threads(nthreads)
-    for (int64_t b = 0; b < nb; b++)
-        for (int64_t i = 0; i < n; i++) block(&q, i, b);
+    for (int64_t b = 0; b < nb; b++) {
+        const int64_t m = P - b * BLK < BLK ? P - b * BLK : BLK;
+        if (m == BLK)          /* a full block: the pixel loops' trip count a constant */
+            for (int64_t i = 0; i < n; i++) block(&q, i, b, BLK);
+        else
+            for (int64_t i = 0; i < n; i++) block(&q, i, b, m);
+    }
 }
+
+/* BLK, for the caller's per-block buffers */
+int64_t bb_pixel_block(void) { return BLK; }

@@ -53,12 +53,14 @@ struct nargs {
     REAL *gkd, *gr, *gks, *gn;
 };
 
-static inline void nblock(const struct nargs *restrict q, const int64_t i, const int64_t b)
+/* Particle i over block b's m pixels (inlined twice, as the pixel kernel's block: a full block's trip count a
+ * constant) */
+static inline __attribute__((always_inline)) void nblock(const struct nargs *restrict q, const int64_t i,
+                                                        const int64_t b, const int64_t m)
 {
     const int64_t V = q->V, L = q->L, P = q->P, l2 = q->l2, grad = q->grad, flags = q->flags;
     const REAL kf = q->kf, eps = q->eps;
     const int64_t p0 = b * BLK;
-    const int64_t m = (P - p0) < BLK ? (P - p0) : BLK;
     BB_BLOCK_MAPS(q->kd, q->r, q->ks, i, P, p0, flags);
     const REAL *restrict NX = q->nt + i * 3 * P + p0, *restrict NY = NX + P, *restrict NZ = NX + 2 * P;
 
@@ -183,6 +185,11 @@ void bb_shade_normal_maps(int64_t n, int64_t V, int64_t L, int64_t P, int64_t ks
                       (REAL)eps, kd, r, ks, nt, frame, vd, ld, hd, w, scale, y, wgt, epart, gkd, gr, gks, gn};
     const int64_t nb = q.nb;
 #pragma omp parallel for schedule(static) num_threads(nthreads)
-    for (int64_t b = 0; b < nb; b++)
-        for (int64_t i = 0; i < n; i++) nblock(&q, i, b);
+    for (int64_t b = 0; b < nb; b++) {
+        const int64_t m = P - b * BLK < BLK ? P - b * BLK : BLK;
+        if (m == BLK)
+            for (int64_t i = 0; i < n; i++) nblock(&q, i, b, BLK);
+        else
+            for (int64_t i = 0; i < n; i++) nblock(&q, i, b, m);
+    }
 }

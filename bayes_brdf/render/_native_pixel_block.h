@@ -10,7 +10,7 @@
 
 #include <stdint.h>
 
-#define BLK 64
+#define BLK 128
 #define LMAX 4 /* lights per view (the caller checks) */
 
 /* Declares KD0..KD2, KS0..KS2 and R: the block's map values for particle i (a constant map's values repeated over

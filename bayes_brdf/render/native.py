@@ -127,6 +127,19 @@ def _lib(dtype: torch.dtype):
                            [ctypes.c_int64] * 10 + [ctypes.c_void_p] * 16, fallback="torch.compile kernels")
 
 
+def pixel_blocks(P: int, dtype: torch.dtype) -> int:
+    """How many pixel blocks the pixel-block kernels (the pixel kernel, the normal-maps kernel) split ``P`` pixels
+    into: the length of their per-block energies and constant maps' partial gradients (``BLK`` of
+    ``_native_pixel_block.h``, asked of the built kernel)."""
+    blk = _BLK.get(dtype)
+    if blk is None:
+        blk = _BLK[dtype] = native_function(_KERNELS_SRC, "bb_pixel_block", dtype, [], restype=ctypes.c_int64)()
+    return -(-P // blk)
+
+
+_BLK: dict = {}
+
+
 def _texel_lib(dtype: torch.dtype, lanes: int = 8):
     """The texel kernel for ``dtype`` with ``lanes`` particles per vector (8 or 16), or ``None`` when native
     kernels are unavailable."""
@@ -207,7 +220,7 @@ def _call(mode, maps, geo, ks_factor, *, y=None, wgt=None, gout=None, l2=False, 
     extent = P if taps is None else max(m.shape[-1] for m in maps)      # values per channel of a full map
     const, flags = _map_flags(maps, extent, no_grad)
     if taps is None:
-        nb = (P + 63) // 64
+        nb = pixel_blocks(P, dt)
         epart = torch.empty(n, nb, dtype=torch.float64) if mode == MODE_LOSS else None
         grads = _block_grads(maps, const, no_grad, grad, nb)
         _lib(dt)(mode, n, V, L, P, int(ks_factor), int(l2), int(need_grad), nt, flags,
@@ -399,7 +412,7 @@ class NativeNormalMapLoss(torch.autograd.Function):
         no_grad = [not f for f in want[:3]]
         const, flags = _map_flags(maps, P, no_grad)
         flags += 0 if want[3] else 64
-        nb = (P + 63) // 64
+        nb = pixel_blocks(P, nt.dtype)
         dt = nt.dtype
         epart = torch.empty(n, nb, dtype=torch.float64)
         grads = _block_grads(maps, const, no_grad, grad, nb)
