@@ -34,8 +34,6 @@
 #define MODE_LOSS 2
 #define MODE_PIXEL_LOSS 3
 
-#define ABS(x) ((x) < 0 ? -(x) : (x))
-#define SIGN(x) ((REAL)(((x) > 0) - ((x) < 0)))
 
 /* Radiance of one view and light over a block; with WITH_GRAD also keep S and S dlnS/dr.
  * A macro so that both variants are straight-line SIMD loops. */
@@ -59,7 +57,7 @@
             (H0) = 2 * (wg) * (d0); (H1) = 2 * (wg) * (d1); (H2) = 2 * (wg) * (d2); \
         } else { \
             (E) += (wg) * (ABS(d0) + ABS(d1) + ABS(d2)); \
-            (H0) = (wg) * SIGN(d0); (H1) = (wg) * SIGN(d1); (H2) = (wg) * SIGN(d2); \
+            (H0) = WSIGN(wg, d0); (H1) = WSIGN(wg, d1); (H2) = WSIGN(wg, d2); \
         } \
     } while (0)
 

@@ -33,8 +33,6 @@
 
 #define NORM_FLOOR ((REAL)1e-30)
 
-#define ABS(x) ((x) < 0 ? -(x) : (x))
-#define SIGN(x) ((REAL)(((x) > 0) - ((x) < 0)))
 #define SQRT(x) _Generic((x), float: sqrtf, default: sqrt)(x)
 
 /* Declares view-and-light vl's rows over the block: the light's direction LX..LZ, the half vector HX..HZ, the
@@ -118,7 +116,7 @@ static inline __attribute__((always_inline)) void nblock(const struct nargs *res
                     h0[j] = 2 * wg * d0; h1[j] = 2 * wg * d1; h2[j] = 2 * wg * d2;
                 } else {
                     e[j] += wg * (ABS(d0) + ABS(d1) + ABS(d2));
-                    h0[j] = wg * SIGN(d0); h1[j] = wg * SIGN(d1); h2[j] = wg * SIGN(d2);
+                    h0[j] = WSIGN(wg, d0); h1[j] = WSIGN(wg, d1); h2[j] = WSIGN(wg, d2);
                 }
             }
         }

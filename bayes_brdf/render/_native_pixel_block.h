@@ -13,6 +13,13 @@
 #define BLK 128
 #define LMAX 4 /* lights per view (the caller checks) */
 
+/* The L1 loss's terms: |d|, and wg sign(d) for a pixel weight wg >= 0 (the weights are masks and inverse noise
+ * scales): wg with d's sign bit, 0 where d is 0. A mask and a copy of the sign bit instead of compares, blends and
+ * an integer conversion: the pixel kernel about 5 % faster. (wg * copysign(1, d) stops GCC vectorising the
+ * one-light loop: 5x slower.) */
+#define ABS(x) _Generic((x), float: __builtin_fabsf, default: __builtin_fabs)(x)
+#define WSIGN(wg, d) ((d) != 0 ? _Generic((d), float: __builtin_copysignf, default: __builtin_copysign)((wg), (d)) : (REAL)0)
+
 /* Declares KD0..KD2, KS0..KS2 and R: the block's map values for particle i (a constant map's values repeated over
  * the block in ckd, cks, cr, so the loops stay one shape) */
 #define BB_BLOCK_MAPS(kd_, r_, ks_, i, P, p0, flags) \

@@ -424,7 +424,8 @@ def shade_loss(maps: SVBRDF, g: GBuffer, target: Tensor, weight: Tensor | float 
     ``loss[i] = sum_{v, pixel, c} weight * |R(x_i; theta_v) - target|`` (``kind="l1"``,
     the paper's Eq. 2 energy times ``sigma``) or ``* (R - target)^2`` (``kind="l2"``).
     ``target`` is ``[V, H, W, 3]`` linear radiance; ``weight`` is a scalar or
-    ``[V, H, W]`` (e.g. ``mask / sigma``). With the compiled backend the
+    ``[V, H, W]`` (e.g. ``mask / sigma``), non-negative (a negative weight makes no loss: the native kernels take
+    the L1 gradient ``weight * sign`` as ``weight`` with the residual's sign). With the compiled backend the
     shading and the loss are fused and differentiated analytically (w.r.t.
     albedo, roughness and specular; normals held fixed), which is the hot path
     of posterior sampling.
