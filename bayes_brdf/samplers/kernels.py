@@ -1,10 +1,14 @@
 """The RBF kernel of Eq. (5) with the median-distance bandwidth, batched over particles (and groups)."""
 from __future__ import annotations
 
+import ctypes
 import math
+from pathlib import Path
 
 import torch
 from torch import Tensor
+
+_RBF_SRC = Path(__file__).parent / "_native_rbf.c"
 
 
 def rbf_median(z: Tensor, groups: int = 1) -> tuple[Tensor, Tensor]:
@@ -38,6 +42,14 @@ def rbf_matrix(z: Tensor, groups: int = 1) -> tuple[Tensor, Tensor]:
     ``[G]`` (``h = 1`` where all particles coincide); ``n >= 2`` particles per group."""
     N, D = z.shape
     n = N // groups
+    native = _native_rbf(z)
+    if native is not None:       # the same in one native pass (_native_rbf.c); the torch ops below are its reference
+        zc = z.contiguous()
+        K = torch.empty(groups, n, n, dtype=z.dtype)
+        h = torch.empty(groups, dtype=z.dtype)
+        from ..render.native import ptr
+        if native(groups, n, D, torch.get_num_threads(), ptr(zc), ptr(K), ptr(h)) == 0:
+            return K, h
     x = z.reshape(groups, n, D)
     gram = x @ x.transpose(1, 2)                                        # [G, n, n]: one pass over z
     sq = gram.diagonal(dim1=1, dim2=2)
@@ -48,6 +60,16 @@ def rbf_matrix(z: Tensor, groups: int = 1) -> tuple[Tensor, Tensor]:
     m2 = d2[:, iu[0], iu[1]].sqrt().median(dim=1).values ** 2          # [G]
     h = torch.where(m2 > 0, m2 / math.log(n), torch.ones_like(m2))
     return torch.exp(-d2 / h[:, None, None]), h
+
+
+def _native_rbf(z: Tensor):
+    """The native :func:`rbf_matrix` for particles like ``z`` (CPU, float32/64), or ``None`` (then the torch ops)."""
+    if z.device.type != "cpu" or z.dim() != 2:
+        return None
+    from ..render.native import native_function
+    i64, vp = ctypes.c_int64, ctypes.c_void_p
+    return native_function(_RBF_SRC, "bb_rbf_matrix", z.dtype, [i64] * 4 + [vp] * 3, restype=ctypes.c_int,
+                           fallback="torch")
 
 
 def kernel_apply(K: Tensor, g: Tensor) -> Tensor:
