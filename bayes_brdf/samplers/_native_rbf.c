@@ -102,7 +102,7 @@ int bb_rbf_matrix(int64_t G, int64_t n, int64_t D, int64_t nt, const REAL *restr
             }
         }
         qsort(dist, (size_t)k, sizeof(double), cmp_double);
-        const double M = dist[(k - 1) / 2], m2 = M * M;
+        const double M = k > 0 ? dist[(k - 1) / 2] : 0, m2 = M * M;     /* (one particle: no pairs, h = 1) */
         const double hq = m2 > 0 ? m2 / log((double)n) : 1.0;
         h[q] = (REAL)hq;
         for (int64_t i = 0; i < nn; i++) K[q * nn + i] = (REAL)exp(-d2[i] / hq);

@@ -63,8 +63,9 @@ def rbf_matrix(z: Tensor, groups: int = 1) -> tuple[Tensor, Tensor]:
 
 
 def _native_rbf(z: Tensor):
-    """The native :func:`rbf_matrix` for particles like ``z`` (CPU, float32/64), or ``None`` (then the torch ops)."""
-    if z.device.type != "cpu" or z.dim() != 2:
+    """The native :func:`rbf_matrix` for particles like ``z`` (CPU, float32/64, not differentiated: the samplers'
+    detached particles), or ``None`` (then the torch ops)."""
+    if z.device.type != "cpu" or z.dim() != 2 or z.requires_grad:
         return None
     from ..render.native import native_function
     i64, vp = ctypes.c_int64, ctypes.c_void_p

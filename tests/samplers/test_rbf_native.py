@@ -57,3 +57,17 @@ def test_native_rbf_matrix_does_not_depend_on_the_thread_count():
         torch.set_num_threads(threads)
     for k, h in out[1:]:
         assert torch.equal(k, out[0][0]) and torch.equal(h, out[0][1])
+
+
+def test_one_particle_and_differentiated_particles(monkeypatch):
+    """One particle per group: a kernel of ones and h = 1 (no pairs to take a median of); particles that require a
+    gradient take the torch ops, so that the kernel stays differentiable."""
+    if K._native_rbf(torch.zeros(1, 1)) is None:
+        pytest.skip("native kernels unavailable here")
+    k, h = K.rbf_matrix(torch.randn(3, 5), 3)
+    assert torch.equal(k, torch.ones(3, 1, 1)) and torch.equal(h, torch.ones(3))
+    z = torch.randn(6, 9, requires_grad=True)
+    k, h = K.rbf_matrix(z, 2)
+    assert k.requires_grad
+    (k0, h0), _ = _both(z.detach(), 2, monkeypatch)
+    torch.testing.assert_close(k.detach(), k0, rtol=1e-5, atol=1e-6)
