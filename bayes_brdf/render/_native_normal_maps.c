@@ -51,8 +51,7 @@ struct nargs {
     REAL *gkd, *gr, *gks, *gn;
 };
 
-/* Particle i over block b's m pixels (inlined twice, as the pixel kernel's block: a full block's trip count a
- * constant) */
+/* Particle i over block b's m pixels (inlined twice by BB_EACH_PARTICLE: a full block's trip count a constant) */
 static inline __attribute__((always_inline)) void nblock(const struct nargs *restrict q, const int64_t i,
                                                         const int64_t b, const int64_t m)
 {
@@ -183,11 +182,5 @@ void bb_shade_normal_maps(int64_t n, int64_t V, int64_t L, int64_t P, int64_t ks
                       (REAL)eps, kd, r, ks, nt, frame, vd, ld, hd, w, scale, y, wgt, epart, gkd, gr, gks, gn};
     const int64_t nb = q.nb;
 #pragma omp parallel for schedule(static) num_threads(nthreads)
-    for (int64_t b = 0; b < nb; b++) {
-        const int64_t m = P - b * BLK < BLK ? P - b * BLK : BLK;
-        if (m == BLK)
-            for (int64_t i = 0; i < n; i++) nblock(&q, i, b, BLK);
-        else
-            for (int64_t i = 0; i < n; i++) nblock(&q, i, b, m);
-    }
+    for (int64_t b = 0; b < nb; b++) BB_EACH_PARTICLE(nblock, &q, n, b, P);
 }

@@ -8,6 +8,8 @@ from pathlib import Path
 import torch
 from torch import Tensor
 
+from ..render.native import native_function, ptr
+
 _RBF_SRC = Path(__file__).parent / "_native_rbf.c"
 
 
@@ -47,7 +49,6 @@ def rbf_matrix(z: Tensor, groups: int = 1) -> tuple[Tensor, Tensor]:
         zc = z.contiguous()
         K = torch.empty(groups, n, n, dtype=z.dtype)
         h = torch.empty(groups, dtype=z.dtype)
-        from ..render.native import ptr
         if native(groups, n, D, torch.get_num_threads(), ptr(zc), ptr(K), ptr(h)) == 0:
             return K, h
     x = z.reshape(groups, n, D)
@@ -67,7 +68,6 @@ def _native_rbf(z: Tensor):
     detached particles), or ``None`` (then the torch ops)."""
     if z.device.type != "cpu" or z.dim() != 2 or z.requires_grad:
         return None
-    from ..render.native import native_function
     i64, vp = ctypes.c_int64, ctypes.c_void_p
     return native_function(_RBF_SRC, "bb_rbf_matrix", z.dtype, [i64] * 4 + [vp] * 3, restype=ctypes.c_int,
                            fallback="torch")
