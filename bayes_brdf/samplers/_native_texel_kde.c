@@ -1,5 +1,6 @@
 /* The proposal densities of the texel-local move (texel_moves.py); compiled on first use by render/native.py.
- * Every entry point runs eight texels at a time, one per SIMD lane (lane_blocks), through the same lane_widths
+ * Every entry point runs eight texels at a time, one per SIMD lane (lane_blocks; bb_texel_propose in stages of TS
+ * texels, propose_stage), through the same lane_widths
  * and lane_logq: the arithmetic of texel_moves._local_scale and texel_moves._log_q (the torch reference, which
  * runs where this does not: CUDA, no compiler), in the particles' precision (LR: float32 particles fill an AVX2
  * vector with the eight lanes; the log ratios within ~2e-6 nats of float64's), without the [T, a, b] temporaries.
@@ -13,7 +14,8 @@
  *   logq [G, T, a]  bb_texel_logq: log((1 - defensive) KDE(x) + defensive prod_k logistic(x_k)), KDE the equal
  *                   mixture of N(c_j, diag h^2)
  * bb_texel_propose and bb_texel_accept are the whole move of one half (texel_moves._half_native): the proposal
- * drawn, both log densities, and the Metropolis decision, reading the particles in place (no [G, T, b, k] copies)
+ * drawn, both log densities, and the Metropolis decision, reading the particles' rows (no [G, T, b, k] copies: a stage's
+ * columns of each row at most)
  * and drawing from a counter-based generator (one seed per call from torch's; each draw a hash of the seed and its
  * particle, texel and index), so they need no torch random tensors either.
  * Texels are independent: OpenMP over them, no reduction across threads but integer counts, so the results do not
@@ -35,12 +37,32 @@
  * eight lanes to an AVX2 vector instead of four */
 #define LABS(x) ((x) < 0 ? -(x) : (x))
 #define RSQRT(x) _Generic((REAL)0, float: sqrtf, default: sqrt)(x)
-#define REXP(x) _Generic((REAL)0, float: expf, default: exp)(x)
 /* e^x for x <= 0, its argument clamped at EXP_LO: e^-80 = 1.8e-35 is below the rounding of every sum it enters (each
- * has a term of at least 1), and glibc's vector expf takes a scalar path for a whole vector when one lane's
- * argument is below about -87 (measured: a proposal half 2x slower with narrow kernel widths) */
+ * has a term of at least 1); expf_neg's 2^n needs n >= -126, and glibc's vector exp (double particles) takes a scalar
+ * path for a whole vector when one lane's argument is below about -87 (measured: a proposal half 2x slower with
+ * narrow kernel widths) */
 #define EXP_LO ((LR)-80)
-#define REXP_NEG(x) REXP((x) > EXP_LO ? (x) : EXP_LO)
+#define REXP_NEG(x) _Generic((REAL)0, float: expf_neg, default: exp)((x) > EXP_LO ? (x) : EXP_LO)
+
+/* e^x for float x in [EXP_LO, 0], inline: glibc's vector expf is a call, around which an `omp simd` loop's vectors are
+ * spilled. x = n ln 2 + r with |r| <= ln 2 / 2 (ln 2 in two parts: n ln 2 exact in the first), e^r by Cephes' expf
+ * polynomial (within 1 ulp of e^r), times 2^n made from its bits (n >= -116: a normal float) */
+static inline float expf_neg(float x)
+{
+    const float n = __builtin_rintf(x * 1.44269504088896341f);
+    const float r = (x - n * 0.693359375f) - n * -2.12194440e-4f;
+    float p = 1.9875691500e-4f;
+    p = p * r + 1.3981999507e-3f;
+    p = p * r + 8.3334519073e-3f;
+    p = p * r + 4.1665795894e-2f;
+    p = p * r + 1.6666665459e-1f;
+    p = p * r + 5.0000001201e-1f;
+    p = p * (r * r) + r + 1;
+    const int32_t bits = ((int32_t)n + 127) << 23;
+    float s;
+    memcpy(&s, &bits, sizeof s);
+    return p * s;
+}
 #define RLOG(x) _Generic((REAL)0, float: logf, default: log)(x)
 #define RLOG1P(x) _Generic((REAL)0, float: log1pf, default: log1p)(x)
 #define RSIN(x) _Generic((REAL)0, float: sinf, default: sin)(x)
@@ -359,6 +381,29 @@ static inline double uniform01(uint64_t seed, uint64_t stream, uint64_t idx)
     return ((double)(x >> 11) + 0.5) * 0x1.0p-53;
 }
 
+typedef uint64_t u64x4 __attribute__((vector_size(32)));
+typedef double f64x4 __attribute__((vector_size(32)));
+
+/* u [W]: uniform01(seed, s0 + l, idx) of the W lanes, the same bits, four lanes to a vector. The compiler leaves
+ * uniform01 itself scalar: AVX2 has no conversion of 64-bit integers to double. Here the draw's 53 bits are converted
+ * in two exact halves (each or'ed into the mantissa of 2^52, less 2^52), their sum is the integer exactly, and only
+ * the add of 0.5 rounds, as in uniform01 (the empty asm keeps -ffast-math from reassociating it with the sum) */
+static inline void lane_uniform01(uint64_t seed, uint64_t s0, uint64_t idx, double u[W])
+{
+    const u64x4 lane = {0, 1, 2, 3}, two52 = (u64x4){0} + 0x4330000000000000ULL;
+    for (int h = 0; h < W; h += 4) {
+        u64x4 x = seed + 0x9E3779B97F4A7C15ULL * ((s0 + (uint64_t)h + lane) * 64 + idx + 1);
+        x = (x ^ (x >> 30)) * 0xBF58476D1CE4E5B9ULL;
+        x = (x ^ (x >> 27)) * 0x94D049BB133111EBULL;
+        x ^= x >> 31;
+        x >>= 11;
+        f64x4 m = ((f64x4)((x >> 32) | two52) - 0x1p52) * 0x1p32 + ((f64x4)((x & 0xFFFFFFFFULL) | two52) - 0x1p52);
+        __asm__("" : "+x"(m));
+        m = (m + 0.5) * 0x1.0p-53;
+        memcpy(u + h, &m, sizeof m);
+    }
+}
+
 typedef struct {
     int64_t T, a, b, k, D;
     const REAL *z; const int64_t *layout, *jac, *A, *B;
@@ -366,58 +411,84 @@ typedef struct {
     REAL *zp; double *dlq;
 } ProposeArgs;
 
-/* scratch: the centres, their scaled copies and their nearest-neighbour distances [b], the uniforms and normals [a],
- * the points and their log-logistic terms [2 a]; and the kernel's exponents [b][W] */
-INLINE void propose_k(const ProposeArgs *pa, Lane *buf, int64_t g, int64_t t0, int64_t nl, const int64_t tl[W],
-                      const int64_t k)
+#define TS 256   /* texels per stage of the whole move (bb_texel_propose) */
+
+/* Where propose_k reads the particles' values and writes the proposals: the rows of the other half (zb [b]), of the
+ * movers (za [a]) and of their proposals (zo [a]), and where a texel's coordinates are in a row: the texels of a
+ * stage are a run of columns for each coordinate (run: texel t0 + l at column c0[q] + l), or look-ups in layout */
+typedef struct { const REAL *zb[BMAX], *za[BMAX]; REAL *zo[BMAX]; int64_t c0[KMAX]; int run; } Rows;
+
+/* dst [W]: coordinate q of the lanes' texels tl (the first t0) in row zr, from the run of columns at c0 + off or one
+ * look-up in layout [T, k] per lane */
+INLINE void lane_load(const REAL *zr, const Rows *R, const int64_t *layout, int64_t k, int64_t q, int64_t off,
+                      const int64_t tl[W], LR dst[W])
 {
-    const int64_t T = pa->T, a = pa->a, b = pa->b, D = pa->D, ke = k + (k & 1);
-    const REAL *z = pa->z;
-    const int64_t *layout = pa->layout, *jac = pa->jac, *A = pa->A, *B = pa->B;
+    if (R->run) {
+#pragma omp simd
+        for (int l = 0; l < W; l++)
+            dst[l] = (LR)zr[R->c0[q] + off + l];
+        return;
+    }
+    for (int l = 0; l < W; l++)
+        dst[l] = (LR)zr[layout[tl[l] * k + q]];
+}
+
+/* One block of W texels (t0 its first, nl of them real, tl lane_texels') of group g, reading and writing through R
+ * (off: t0 less its stage's first texel). scratch: the centres, their scaled copies and their nearest-neighbour
+ * distances [b], the uniforms and normals [a], the points and their log-logistic terms [2 a]; and the kernel's
+ * exponents [b][W] */
+INLINE void propose_k(const ProposeArgs *pa, Lane *buf, int64_t g, int64_t t0, int64_t nl, const int64_t tl[W],
+                      const int64_t k, const Rows *R, int64_t off)
+{
+    const int64_t T = pa->T, a = pa->a, b = pa->b, ke = k + (k & 1);
+    const int64_t *layout = pa->layout, *jac = pa->jac;
     const uint64_t seed = pa->seed;
     const double bw = pa->bw, hmin = pa->hmin, defensive = pa->defensive, two_pi = 2 * M_PI;
-    REAL *zp = pa->zp;
     double *dlq = pa->dlq;
     Lane *C = buf, *cs = C + b, *dist = cs + b, *un = dist + b, *nrm = un + a, *X = nrm + a, *lg = X + 2 * a;
     LR (*ex)[W] = (LR (*)[W])(lg + 2 * a);
     int64_t pick[BMAX][W];
     LR wide[BMAX][W], H[KMAX][W];
     LaneKde K;
-    /* the rows' values PF texels on, read and written by a later block of this thread: 3 k streams per particle of
-     * the group, too many for the hardware prefetcher (measured on AVX2: a half 28.7 -> 22 ms on one thread) */
-    const int64_t tp = t0 + PF < T ? t0 + PF : T - 1;
-    for (int64_t q = 0; q < k; q++) {
-        const int64_t col = layout[tp * k + q];
-        for (int64_t j = 0; j < b; j++)
-            __builtin_prefetch(z + B[g * b + j] * D + col, 0, 3);
-        for (int64_t i = 0; i < a; i++) {
-            __builtin_prefetch(z + A[g * a + i] * D + col, 0, 3);
-            __builtin_prefetch(zp + (g * a + i) * D + col, 1, 3);
+    if (!R->run) {
+        /* the rows' values PF texels on, read and written by a later block of this thread: 3 k streams per particle
+         * of the group, too many for the hardware prefetcher (measured on AVX2: a half 28.7 -> 22 ms on one thread) */
+        const int64_t tp = t0 + PF < T ? t0 + PF : T - 1;
+        for (int64_t q = 0; q < k; q++) {
+            const int64_t col = layout[tp * k + q];
+            for (int64_t j = 0; j < b; j++)
+                __builtin_prefetch(R->zb[j] + col, 0, 3);
+            for (int64_t i = 0; i < a; i++) {
+                __builtin_prefetch(R->za[i] + col, 0, 3);
+                __builtin_prefetch(R->zo[i] + col, 1, 3);
+            }
         }
     }
-    for (int64_t j = 0; j < b; j++) {
-        const REAL *zr = z + B[g * b + j] * D;
+    for (int64_t j = 0; j < b; j++)
         for (int64_t q = 0; q < k; q++)
-            for (int l = 0; l < W; l++)
-                C[j][q][l] = (LR)zr[layout[tl[l] * k + q]];
-    }
+            lane_load(R->zb[j], R, layout, k, q, off, tl, C[j][q]);
     lane_widths(C, b, k, bw, hmin, dist, H);
     lane_kde_init(&K, C, H, b, k, defensive, cs);
     /* the draws: 0 picks the defensive logistic, 1 the centre, 2.. the coordinates (pairs for Box-Muller) */
     for (int64_t i = 0; i < a; i++) {
         const uint64_t s0 = (uint64_t)((g * a + i) * T + t0);    /* lane l's stream: s0 + l */
+        double u[W];
+        lane_uniform01(seed, s0, 0, u);
 #pragma omp simd
         for (int l = 0; l < W; l++)
-            wide[i][l] = uniform01(seed, s0 + (uint64_t)l, 0) < defensive;
+            wide[i][l] = u[l] < defensive;
+        lane_uniform01(seed, s0, 1, u);
 #pragma omp simd
         for (int l = 0; l < W; l++) {
-            const int64_t pk = (int64_t)(uniform01(seed, s0 + (uint64_t)l, 1) * b);
+            const int64_t pk = (int64_t)(u[l] * b);
             pick[i][l] = pk < b ? pk : b - 1;
         }
-        for (int64_t q = 0; q < ke; q++)
+        for (int64_t q = 0; q < ke; q++) {
+            lane_uniform01(seed, s0, 2 + q, u);
 #pragma omp simd
             for (int l = 0; l < W; l++)
-                un[i][q][l] = uniform01(seed, s0 + (uint64_t)l, 2 + q);
+                un[i][q][l] = u[l];
+        }
     }
     /* Box-Muller; the cosines and sines in loops of their own, or the compiler fuses them into a scalar
      * sincos call */
@@ -437,10 +508,8 @@ INLINE void propose_k(const ProposeArgs *pa, Lane *buf, int64_t g, int64_t t0, i
     /* the points: the movers' current values (X[0..a)) and their proposals (X[a..2a)), rounded as the
      * particles are, scored as they will be */
     for (int64_t i = 0; i < a; i++) {
-        const REAL *zr = z + A[g * a + i] * D;
         for (int64_t q = 0; q < k; q++) {
-            for (int l = 0; l < W; l++)
-                X[i][q][l] = (LR)zr[layout[tl[l] * k + q]];
+            lane_load(R->za[i], R, layout, k, q, off, tl, X[i][q]);
             LR cp[W];
             for (int l = 0; l < W; l++)
                 cp[l] = C[pick[i][l]][q][l];
@@ -462,23 +531,73 @@ INLINE void propose_k(const ProposeArgs *pa, Lane *buf, int64_t g, int64_t t0, i
 #pragma omp simd
         for (int l = 0; l < W; l++)
             dj[l] = lg[a + i][1][l] - lg[i][1][l];
-        const int64_t row = g * a + i;
-        for (int l = 0; l < nl; l++) {
-            dlq[row * T + t0 + l] = (double)out[0][l] - out[1][l] + dj[l];
+        double *dr = dlq + (g * a + i) * T + t0;
+        for (int l = 0; l < nl; l++)
+            dr[l] = (double)out[0][l] - out[1][l] + dj[l];
+        if (R->run) {       /* into the stage (W lanes: its room is a whole number of blocks) */
             for (int64_t q = 0; q < k; q++)
-                zp[row * D + layout[(t0 + l) * k + q]] = (REAL)X[a + i][q][l];
+#pragma omp simd
+                for (int l = 0; l < W; l++)
+                    R->zo[i][R->c0[q] + off + l] = (REAL)X[a + i][q][l];
+            continue;
         }
+        for (int l = 0; l < nl; l++)
+            for (int64_t q = 0; q < k; q++)
+                R->zo[i][layout[(t0 + l) * k + q]] = (REAL)X[a + i][q][l];
     }
 }
 
-/* propose_k, inlined with k = 4 (three albedo channels and roughness: the common case) for constant loop bounds */
-static void propose_block(const void *args, Lane *buf, int64_t g, int64_t t0, int64_t nl, const int64_t tl[W])
+/* The texels tc..te of group g (a stage: at most TS): when each coordinate's columns are a run (texel_layout's always
+ * are), the rows' runs are copied into the thread's stage (st: the other half's, then the movers', then the proposals'
+ * [k][TS] each), so that the blocks read and write it instead of 3 k (a + b) strided streams, and the proposals are
+ * copied out at the end; else the blocks use the rows in place. propose_k inlined with k = 4 (three albedo channels
+ * and roughness: the common case) for constant loop bounds */
+static void propose_stage(const ProposeArgs *pa, Lane *buf, REAL *st, int64_t g, int64_t tc, int64_t te)
 {
-    const ProposeArgs *pa = args;
-    if (pa->k == 4)
-        propose_k(pa, buf, g, t0, nl, tl, 4);
-    else
-        propose_k(pa, buf, g, t0, nl, tl, pa->k);
+    const int64_t T = pa->T, a = pa->a, b = pa->b, k = pa->k, D = pa->D, n = te - tc;
+    const int64_t *layout = pa->layout;
+    Rows R;
+    R.run = 1;
+    for (int64_t q = 0; q < k; q++) {
+        R.c0[q] = layout[tc * k + q];
+        for (int64_t t = tc + 1; t < te && R.run; t++)
+            R.run = layout[t * k + q] == R.c0[q] + (t - tc);
+    }
+    for (int64_t j = 0; j < b; j++)
+        R.zb[j] = pa->z + pa->B[g * b + j] * D;
+    for (int64_t i = 0; i < a; i++) {
+        R.za[i] = pa->z + pa->A[g * a + i] * D;
+        R.zo[i] = pa->zp + (g * a + i) * D;
+    }
+    REAL *zo[BMAX];
+    if (R.run) {
+        for (int64_t j = 0; j < b + a; j++) {
+            const REAL *src = j < b ? R.zb[j] : R.za[j - b];
+            REAL *dst = st + j * k * TS;
+            for (int64_t q = 0; q < k; q++)
+                memcpy(dst + q * TS, src + R.c0[q], (size_t)n * sizeof(REAL));
+            if (j < b) R.zb[j] = dst; else R.za[j - b] = dst;
+        }
+        for (int64_t i = 0; i < a; i++) {
+            zo[i] = R.zo[i];
+            R.zo[i] = st + (b + a + i) * k * TS;
+        }
+        for (int64_t q = 0; q < k; q++)
+            R.c0[q] = q * TS;
+    }
+    for (int64_t t0 = tc; t0 < te; t0 += W) {
+        int64_t tl[W];
+        lane_texels(t0, T, tl);
+        const int64_t nl = te - t0 < W ? te - t0 : W;
+        if (k == 4)
+            propose_k(pa, buf, g, t0, nl, tl, 4, &R, t0 - tc);
+        else
+            propose_k(pa, buf, g, t0, nl, tl, k, &R, t0 - tc);
+    }
+    if (R.run)
+        for (int64_t i = 0; i < a; i++)
+            for (int64_t q = 0; q < k; q++)
+                memcpy(zo[i] + layout[tc * k + q], R.zo[i] + q * TS, (size_t)n * sizeof(REAL));
 }
 
 /* For every mover i (rows A [G a] of z [N, D], the group g = i / a) and texel t (its coordinates layout [T, k]):
@@ -495,7 +614,25 @@ int bb_texel_propose(int64_t G, int64_t T, int64_t a, int64_t b, int64_t k, int6
     if (k > KMAX || b > BMAX || a > BMAX || b < 2)     /* a mover's draws: 2 + k <= 10 of its stream's 64 */
         return 1;
     const ProposeArgs args = {T, a, b, k, D, z, layout, jac, A, B, seed, bw, hmin, defensive, zp, dlq};
-    return lane_blocks(G, T, nthreads, (3 * b + 6 * a) * sizeof(Lane) + b * sizeof(LR[W]), propose_block, &args);
+    const int64_t nst = (T + TS - 1) / TS;
+    const size_t scratch = (3 * b + 6 * a) * sizeof(Lane) + b * sizeof(LR[W]);
+    int failed = 0;
+#pragma omp parallel num_threads(nthreads) reduction(| : failed)
+    {
+        Lane *buf = malloc(scratch);
+        REAL *st = calloc((size_t)((b + 2 * a) * k * TS), sizeof(REAL));   /* zeros: the lanes past a stage's end */
+        failed = !buf || !st;
+#pragma omp for schedule(static)
+        for (int64_t gs = 0; gs < G * nst; gs++) {
+            if (!buf || !st)
+                continue;
+            const int64_t g = gs / nst, tc = (gs % nst) * TS;
+            propose_stage(&args, buf, st, g, tc, tc + TS < T ? tc + TS : T);
+        }
+        free(buf);
+        free(st);
+    }
+    return failed;
 }
 
 /* the log of uniform01's smallest value, 2^-54 (-37.42995), rounded down: at or below it no draw accepts */

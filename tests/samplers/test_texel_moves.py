@@ -206,6 +206,40 @@ def test_native_move_scores_four_coordinates_as_the_torch_reference_does(dtype):
 
 
 @pytest.mark.needs_native
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_native_move_is_the_same_whether_a_texels_columns_are_a_run_or_not(dtype):
+    """``bb_texel_propose`` copies a stage of texels whose columns are runs (``texel_layout``'s always are) into a
+    buffer of its own and works there; with any other layout it reads the rows in place. The same texel values under
+    a shuffled layout give the same proposals and log ratios, bit for bit: two groups, 2 stages of 256 texels and
+    a last one of 100, whose last block has 4 texels."""
+    from bayes_brdf.render.native import ptr
+    gen = torch.Generator().manual_seed(5)
+    G, a, b, T, k = 2, 5, 6, 612, 4
+    N = G * (a + b)
+    L = (torch.arange(k)[None] * T + torch.arange(T)[:, None]).contiguous()           # runs
+    z = (torch.randn(N, k * T + 3, generator=gen, dtype=torch.float64) * 0.5).to(dtype)   # 3 columns no texel has
+    perm = torch.randperm(k * T, generator=gen)
+    zs = z.clone()
+    zs[:, perm] = z[:, :k * T]                     # column c of z is column perm[c] of zs
+    Ls = perm[L].contiguous()                      # texel t's coordinates in zs: no runs
+    jac = torch.tensor([1, 1, 1, 0])
+    A = torch.cat([torch.arange(a), a + b + torch.arange(a)])
+    B = torch.stack([a + torch.arange(b), 2 * a + b + torch.arange(b)])
+    fn = TM._kde_kernel("bb_texel_propose", z)
+    out = []
+    for zz, LL in ((z, L), (zs, Ls)):
+        zp, dlq = zz[A], torch.full((G * a, T), float("nan"), dtype=torch.float64)
+        assert fn(G, T, a, b, k, zz.shape[1], 2, ptr(zz), ptr(LL), ptr(jac), ptr(A), ptr(B), 4242, 2.5, TM.H_MIN,
+                  TM.DEFENSIVE, ptr(zp), ptr(dlq)) == 0
+        out.append((zp[:, LL], zp[:, -3:], dlq))
+    (p_run, rest_run, d_run), (p_perm, rest_perm, d_perm) = out
+    assert not torch.equal(p_run, z[A][:, L])                                   # it proposed
+    assert torch.equal(p_run, p_perm) and torch.equal(d_run, d_perm)
+    assert torch.equal(rest_run, z[A][:, -3:]) and torch.equal(rest_perm, zs[A][:, -3:])   # the rest untouched
+    assert bool(torch.isfinite(d_run).all())
+
+
+@pytest.mark.needs_native
 @pytest.mark.parametrize("dtype", [torch.float64, torch.float32])
 def test_native_move_scores_its_proposals_as_the_torch_reference_does(small, dtype):
     """``bb_texel_propose``'s log ratio for the proposals it drew: the torch kernel density at the current and
