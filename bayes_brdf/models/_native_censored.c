@@ -16,6 +16,38 @@
 
 #include <stdlib.h>
 
+/* Particle i's values: the sums into *tot and *dt, and grad and terms where asked. Inlined with WITHG, WITHGRAD and
+ * WITHPER constant (bb_censored_laplace's eight cases), so that the vector loop has no test of a null pointer: with
+ * one, GCC loads g[m] (or stores) under a mask that is all false, from address 0 + m, and on AMD's cores such a
+ * masked access of an unmapped page takes a microcode assist (measured: 70 % of the kernel's time, 2.5 ms for 20
+ * particles x 5174 saturated pixels on 2 cores) */
+static inline __attribute__((always_inline)) void particle(const int WITHG, const int WITHGRAD, const int WITHPER,
+                                                           int64_t M, const REAL *restrict ri,
+                                                           const REAL *restrict level, double si,
+                                                           const REAL *restrict g, const REAL *restrict w,
+                                                           REAL *restrict gi, double *restrict per, double *out_tot,
+                                                           double *out_dt)
+{
+    const double ln2 = log(2.0), is = 1 / si;
+    double tot = 0, dt = 0;
+#pragma omp simd reduction(+ : tot, dt)
+    for (int64_t m = 0; m < M; m++) {
+        const double isc = WITHG ? is / (double)g[m] : is, wm = (double)w[m];
+        const double t = ((double)level[m] - (double)ri[m]) * isc;
+        const double e = exp(t < 0 ? t : 0), S = 1 - 0.5 * e;
+        const double ls = t >= 0 ? -t - ln2 : log1p(-0.5 * e);
+        const double d = t >= 0 ? -1.0 : 1 - 1 / S;
+        tot += wm * ls;
+        dt += wm * d * t;
+        if (WITHGRAD)
+            gi[m] = (REAL)(-wm * d * isc);
+        if (WITHPER)
+            per[m] = wm * ls;
+    }
+    *out_tot = tot;
+    *out_dt = dt;
+}
+
 /* w [K C] and g [K C] (or NULL) per value, repeated over each pixel's channels: one flat vector loop. 0 on
  * success, 1 when out of memory */
 int bb_censored_laplace(int64_t n, int64_t K, int64_t C, int64_t nthreads, const REAL *restrict r,
@@ -24,7 +56,7 @@ int bb_censored_laplace(int64_t n, int64_t K, int64_t C, int64_t nthreads, const
                         double *restrict terms, REAL *restrict grad)
 {
     const int64_t M = K * C;
-    const double ln2 = log(2.0);
+    const int cases = (g != 0) * 4 + (grad != 0) * 2 + (terms != 0);
     int failed = 0;
 #pragma omp parallel for schedule(static) num_threads(nthreads) reduction(| : failed)
     for (int64_t i = 0; i < n; i++) {
@@ -35,22 +67,19 @@ int bb_censored_laplace(int64_t n, int64_t K, int64_t C, int64_t nthreads, const
             failed = 1;
             continue;
         }
-        const double si = s[i], is = 1 / si;
-        double tot = 0, dt = 0;
-#pragma omp simd reduction(+ : tot, dt)
-        for (int64_t m = 0; m < M; m++) {
-            const double isc = g ? is / (double)g[m] : is, wm = (double)w[m];
-            const double t = ((double)level[m] - (double)ri[m]) * isc;
-            const double e = exp(t < 0 ? t : 0), S = 1 - 0.5 * e;
-            const double ls = t >= 0 ? -t - ln2 : log1p(-0.5 * e);
-            const double d = t >= 0 ? -1.0 : 1 - 1 / S;
-            tot += wm * ls;
-            dt += wm * d * t;
-            if (gi)
-                gi[m] = (REAL)(-wm * d * isc);
-            if (per)
-                per[m] = wm * ls;
+        double tot, dt;
+#define BB_PARTICLE(G_, GRAD_, PER_) particle(G_, GRAD_, PER_, M, ri, level, s[i], g, w, gi, per, &tot, &dt)
+        switch (cases) {
+        case 0: BB_PARTICLE(0, 0, 0); break;
+        case 1: BB_PARTICLE(0, 0, 1); break;
+        case 2: BB_PARTICLE(0, 1, 0); break;
+        case 3: BB_PARTICLE(0, 1, 1); break;
+        case 4: BB_PARTICLE(1, 0, 0); break;
+        case 5: BB_PARTICLE(1, 0, 1); break;
+        case 6: BB_PARTICLE(1, 1, 0); break;
+        default: BB_PARTICLE(1, 1, 1); break;
         }
+#undef BB_PARTICLE
         if (per) {
             for (int64_t k = 0; k < K; k++) {
                 double lt = 0;
@@ -61,7 +90,7 @@ int bb_censored_laplace(int64_t n, int64_t K, int64_t C, int64_t nthreads, const
             free(per);
         }
         total[i] = tot;
-        dsig[i] = -dt * is;
+        dsig[i] = -dt * (1 / s[i]);
     }
     return failed;
 }
