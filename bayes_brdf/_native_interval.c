@@ -7,6 +7,7 @@
  * terms are summed as the log of their product over runs of 8 coordinates a lane (each factor 1 + exp(-|u|) is in
  * (1, 2], so the product is finite): one log per 8 coordinates instead of a log1p each (2x faster; the sum
  * within float32 rounding of the per-term one).
+ * bb_interval_map: x alone, the same values.
  * Backward, given dL/dx (gx) and dL/dladj (gl[i]):
  *     du = gx w s (1 - s) + gl[i] (1 - 2 s)
  * written with a row stride, so that each site's gradient goes straight into its columns of dL/dz.
@@ -63,6 +64,27 @@ void bb_interval_fwd(int64_t n, int64_t m, int64_t us, double lo, double w, int6
             acc += (double)part;
         }
         ladj[i] = acc + logw;
+    }
+}
+
+/* x = lo + w sigmoid(u) alone, by bb_interval_fwd's expression (the same values): for values that need no gradient
+ * and no log-Jacobian (IntervalBijection.__call__ without a graph: a texel sweep's renders, the outputs' maps) */
+void bb_interval_map(int64_t n, int64_t m, int64_t us, double lo, double w, int64_t nt, const REAL *restrict u,
+                     REAL *restrict x)
+{
+    const REAL rlo = (REAL)lo, rw = (REAL)w;
+#pragma omp parallel for num_threads(nt) schedule(static)
+    for (int64_t i = 0; i < n; i++) {
+        const REAL *restrict ui = u + i * us;
+        REAL *restrict xi = x + i * m;
+#pragma omp simd
+        for (int64_t j = 0; j < m; j++) {
+            const REAL uj = ui[j];
+            const REAL a = uj < 0 ? -uj : uj;
+            const REAL t = exp(-a);
+            const REAL inv = (REAL)1 / ((REAL)1 + t);
+            xi[j] = rlo + rw * (uj >= 0 ? inv : t * inv);
+        }
     }
 }
 

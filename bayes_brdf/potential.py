@@ -70,6 +70,17 @@ def _interval_kernels(u: Tensor):
     return None if fwd is None or bwd is None else (fwd, bwd)
 
 
+def _interval_map_kernel(u: Tensor):
+    """The native ``x = lo + w sigmoid(u)`` alone (``bb_interval_map``: the forward's values, no log-Jacobian) for
+    tensors like ``u``, or ``None`` (CUDA, no compiler: torch's sigmoid)."""
+    if u.device.type != "cpu":
+        return None
+    from .render.native import native_function
+    i64, dbl, vp = ctypes.c_int64, ctypes.c_double, ctypes.c_void_p
+    return native_function(_INTERVAL_SRC, "bb_interval_map", u.dtype, [i64, i64, i64, dbl, dbl, i64, vp, vp],
+                           extra_flags=("-ffast-math",))
+
+
 class _IntervalFn(torch.autograd.Function):
     """``x = lo + (hi - lo) sigmoid(u)`` and the per-particle ``sum log|dx/du|`` in one fused pass (a native
     loop on CPU: one read of ``u`` and one write of ``x`` forward, one pass backward; torch ops elsewhere)."""
@@ -205,6 +216,16 @@ class IntervalBijection:
         return _IntervalFn.apply(u, self.lo, self.hi)
 
     def __call__(self, u):
+        if not u.requires_grad and u.dim() > 0 and u.numel() > 0:
+            k = _interval_map_kernel(u)
+            if k is not None:                         # one native pass (a texel sweep's renders, the outputs' maps)
+                if not u[0].is_contiguous():
+                    u = u.contiguous()
+                n, m = u.shape[0], u[0].numel()
+                x = torch.empty(u.shape, dtype=u.dtype)
+                k(n, m, u.stride(0) if n > 1 else m, float(self.lo), float(self.hi - self.lo),
+                  torch.get_num_threads(), ptr(u), ptr(x))
+                return x
         x = torch.sigmoid(u)
         if self.lo == 0.0 and self.hi == 1.0:
             return x                                  # x * 1 + 0: the same bits

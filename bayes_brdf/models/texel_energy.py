@@ -52,7 +52,7 @@ def _scale(model, data: ModelData, resid: Tensor, r: Tensor | None) -> tuple[Ten
         s = torch.full((n,), float(model.sigma), dtype=torch.float64, device=resid.device)
         return s, (1 / s if lap else 1 / (2 * s * s)), None if r is None else _censored_terms(model, data, r, s,
                                                                                                   channels=False)
-    e = resid.reshape(n, -1).sum(1).double()
+    e = resid.sum(tuple(range(1, resid.dim())), dtype=torch.float64)     # in place of a reshape: no copy of resid
     N = 3 * data.weight.sum().double()
     if lap:
         s = (e / N).clamp_min(SIGMA_FLOOR)

@@ -207,6 +207,33 @@ def test_native_interval_kernel_equals_the_torch_ops(monkeypatch, dtype):
 
 
 @pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_constrained_values_without_a_graph_are_the_forwards(monkeypatch, dtype):
+    """``IntervalBijection`` called on values without a gradient (a texel sweep's renders, the outputs' maps) runs
+    the native map: the native forward's values and torch's sigmoid's within rounding (the vector and scalar exp
+    differ in the last bits), on a strided slice, an expanded tensor and saturated coordinates; with a graph,
+    torch's ops."""
+    from torch.distributions import constraints
+
+    import bayes_brdf.potential as P
+
+    if P._interval_map_kernel(torch.zeros(1, dtype=dtype)) is None:
+        pytest.skip("native kernels unavailable here")
+    t = P.IntervalBijection.maybe(constraints.interval(0.01, 0.7))
+    gen = torch.Generator().manual_seed(0)
+    z = torch.randn(5, 2, 3001, generator=gen, dtype=dtype) * 8
+    z[0, 1, :3] = torch.tensor([60.0, -60.0, 0.0], dtype=dtype)
+    u = z[:, 1]                                                     # rows 6002 apart
+    x = t(u)
+    tol = 1e-6 if dtype == torch.float32 else 1e-14
+    torch.testing.assert_close(x, P._IntervalFn.apply(u, t.lo, t.hi)[0], rtol=tol, atol=tol)
+    torch.testing.assert_close(x, torch.sigmoid(u) * (t.hi - t.lo) + t.lo, rtol=tol, atol=tol)
+    assert torch.equal(t(u[:1].expand(3, -1)), x[:1].expand(3, -1))
+    g = u.clone().requires_grad_(True)
+    monkeypatch.setattr(P, "_interval_map_kernel", lambda u: pytest.fail("a graph needs torch's ops"))
+    assert t(g).requires_grad
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
 def test_all_sites_at_once_give_the_per_site_numbers(monkeypatch, dtype):
     """The fused unpack (every site on an interval or unconstrained: each site's gradient written into its columns
     of dL/dz) gives the per-site path's energies and gradients bit for bit, with and without the Jacobian, and
