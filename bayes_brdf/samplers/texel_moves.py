@@ -30,6 +30,7 @@ import contextlib
 import ctypes
 import functools
 import math
+import weakref
 from pathlib import Path
 
 import torch
@@ -42,9 +43,26 @@ _KDE_SRC = Path(__file__).parent / "_native_texel_kde.c"
 H_MIN = 1e-3        # the smallest kernel width (unconstrained units): identical centres still propose
 
 
+_LAYOUTS: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()    # potential -> its texel_layout
+
+
 def texel_layout(potential) -> Tensor | None:
     """``[T, k]``: the coordinates of ``z`` that hold each texel's values, or ``None`` when the potential's model
-    does not offer texel energies (:func:`~bayes_brdf.models.texel_energy.offers_texel_energy`)."""
+    does not offer texel energies (:func:`~bayes_brdf.models.texel_energy.offers_texel_energy`). Made once per
+    potential (a potential's model and sites do not change) and kept while the potential lives."""
+    try:
+        return _LAYOUTS[potential]
+    except (KeyError, TypeError):
+        pass
+    layout = _texel_layout(potential)
+    try:
+        _LAYOUTS[potential] = layout
+    except TypeError:                                   # not weakly referable: made again next time
+        pass
+    return layout
+
+
+def _texel_layout(potential) -> Tensor | None:
     model, args = getattr(potential, "model", None), getattr(potential, "args", ())
     if not (args and offers_texel_energy(model, args[0])):
         return None
@@ -83,6 +101,7 @@ def texel_move(z: Tensor, potential, rng: torch.Generator, groups: int = 1, band
     the native kernel's (:func:`_half_native`), elsewhere torch's (:func:`_half_torch`, the reference); the two
     draw their randomness differently, so their particles differ, not their distribution.
     """
+    covers = layout is None           # texel_layout's columns are distinct: all of z's when there are D of them
     layout = texel_layout(potential) if layout is None else layout
     N, D = z.shape
     n = N // groups
@@ -95,7 +114,7 @@ def texel_move(z: Tensor, potential, rng: torch.Generator, groups: int = 1, band
     e, scale = texel_energy(potential, z, jacobian=not native)      # the kernel adds the Jacobian's difference
     if native:                                        # what both halves' kernels read, made once
         e, layout = e.double().contiguous(), layout.contiguous()
-        move = functools.partial(_half_native, jac=_interval_coordinates(potential))
+        move = functools.partial(_half_native, jac=_interval_coordinates(potential), covers=covers and T * k == D)
     else:
         move = _half_torch
     rows = torch.arange(N).reshape(groups, n)
@@ -176,11 +195,13 @@ def _interval_coordinates(potential) -> Tensor:
 
 
 def _half_native(z: Tensor, e: Tensor, scale: tuple, A: Tensor, B: Tensor, layout: Tensor, potential,
-                 rng: torch.Generator, bandwidth: float, *, jac: Tensor) -> int:
+                 rng: torch.Generator, bandwidth: float, *, jac: Tensor, covers: bool = False) -> int:
     """:func:`_half_torch` in two native calls around the proposals' energies (``bb_texel_propose``: draws, widths,
     both log densities and the Jacobian's difference; ``bb_texel_accept``: the decisions, written into ``z``),
     with two seeds drawn from ``rng``; ``e`` float64 and contiguous, without the Jacobian
-    (``texel_energy(..., jacobian=False)``), ``layout`` contiguous, ``jac`` :func:`_interval_coordinates`."""
+    (``texel_energy(..., jacobian=False)``), ``layout`` contiguous, ``jac`` :func:`_interval_coordinates`;
+    ``covers``: the layout's columns are all of ``z``'s, once each (the proposals' rows need no copy of the movers'
+    first: the kernel writes every column)."""
     propose, accept = _kde_kernel("bb_texel_propose", z), _kde_kernel("bb_texel_accept", z)
     sigma, kappa = scale
     T, k = layout.shape
@@ -188,7 +209,7 @@ def _half_native(z: Tensor, e: Tensor, scale: tuple, A: Tensor, B: Tensor, layou
     na, D = A.numel() // groups, z.shape[1]
     Ai, Bi = A.contiguous(), B.reshape(-1).contiguous()
     seeds = torch.randint(0, 2 ** 62, (2,), generator=rng).tolist()
-    zp = z[Ai]                                                       # the movers' rows; their texels replaced below
+    zp = torch.empty(Ai.numel(), D, dtype=z.dtype) if covers else z[Ai]    # the movers' rows, texels replaced below
     dlq = torch.empty(na * groups, T, dtype=torch.float64)
     threads = torch.get_num_threads()
     if propose(groups, T, na, nb, k, D, threads, ptr(z), ptr(layout), ptr(jac), ptr(Ai), ptr(Bi), seeds[0],

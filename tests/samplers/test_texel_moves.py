@@ -316,3 +316,19 @@ def test_reference_moves_take_torch_path_on_cpu(small, monkeypatch):
     monkeypatch.setenv("BAYES_BRDF_NO_NATIVE", "1")
     assert torch.equal(ref, sweep())
     assert not torch.equal(ref, native) or not native_ran
+
+
+@pytest.mark.needs_native
+def test_a_sweep_over_all_columns_skips_the_movers_copy_with_the_same_result(small):
+    """With the potential's own layout (made once per potential), whose texels hold every column of ``z``, a native
+    sweep starts the proposals' rows empty instead of copying the movers' rows: the kernel writes every column.
+    The particles and the acceptance rate are those of the same sweep given the layout (which copies), bit for
+    bit, and the layout is the same tensor each time."""
+    _, pot = small
+    z = pot.init(12, seed=2)
+    L = texel_layout(pot)
+    assert L is texel_layout(pot) and L.numel() == z.shape[1]
+    own = texel_move(z, pot, torch.Generator().manual_seed(7))
+    given = texel_move(z, pot, torch.Generator().manual_seed(7), layout=L.clone())
+    assert torch.equal(own[0], given[0]) and own[1] == given[1]
+    assert not torch.equal(own[0], z)
