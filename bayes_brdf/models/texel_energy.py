@@ -17,9 +17,13 @@ import torch
 from torch import Tensor
 
 from ..render.shade import shade, shade_pixel_loss
+from ..render.tensor_memo import TensorMemo
 from .censored_kernel import censored_laplace
 from .data import ModelData
 from .likelihood import SIGMA_FLOOR, censored_log_survival
+
+
+_WEIGHT_SUMS = TensorMemo(4)     # 3 * the pixel weights' sum, by the weights' identity: the same every sweep
 
 
 def offers_texel_energy(model, data) -> bool:
@@ -52,8 +56,8 @@ def _scale(model, data: ModelData, resid: Tensor, r: Tensor | None) -> tuple[Ten
         s = torch.full((n,), float(model.sigma), dtype=torch.float64, device=resid.device)
         return s, (1 / s if lap else 1 / (2 * s * s)), None if r is None else _censored_terms(model, data, r, s,
                                                                                                   channels=False)
-    e = resid.sum(tuple(range(1, resid.dim())), dtype=torch.float64)     # in place of a reshape: no copy of resid
-    N = 3 * data.weight.sum().double()
+    e = resid.sum(tuple(range(1, resid.dim()))).double()     # over resid's own layout: a reshape would copy it
+    N = _WEIGHT_SUMS.get((data.weight,), (), lambda: 3 * data.weight.sum().double())
     if lap:
         s = (e / N).clamp_min(SIGMA_FLOOR)
         kappa, ds_de = 1 / s, (e / N >= SIGMA_FLOOR).double() / N
