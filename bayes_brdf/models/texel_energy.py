@@ -56,7 +56,7 @@ def _scale(model, data: ModelData, resid: Tensor, r: Tensor | None) -> tuple[Ten
         s = torch.full((n,), float(model.sigma), dtype=torch.float64, device=resid.device)
         return s, (1 / s if lap else 1 / (2 * s * s)), None if r is None else _censored_terms(model, data, r, s,
                                                                                                   channels=False)
-    e = resid.sum(tuple(range(1, resid.dim()))).double()     # over resid's own layout: a reshape would copy it
+    e = resid.sum(tuple(range(1, resid.dim()))).double()     # [n, H, W, 3] in its own layout: a reshape copied it
     N = _WEIGHT_SUMS.get((data.weight,), (), lambda: 3 * data.weight.sum().double())
     if lap:
         s = (e / N).clamp_min(SIGMA_FLOOR)

@@ -390,6 +390,7 @@ typedef double f64x4 __attribute__((vector_size(32)));
  * the add of 0.5 rounds, as in uniform01 (the empty asm keeps -ffast-math from reassociating it with the sum) */
 static inline void lane_uniform01(uint64_t seed, uint64_t s0, uint64_t idx, double u[W])
 {
+#if defined(__x86_64__) || defined(__i386__)
     const u64x4 lane = {0, 1, 2, 3}, two52 = (u64x4){0} + 0x4330000000000000ULL;
     for (int h = 0; h < W; h += 4) {
         u64x4 x = seed + 0x9E3779B97F4A7C15ULL * ((s0 + (uint64_t)h + lane) * 64 + idx + 1);
@@ -402,6 +403,10 @@ static inline void lane_uniform01(uint64_t seed, uint64_t s0, uint64_t idx, doub
         m = (m + 0.5) * 0x1.0p-53;
         memcpy(u + h, &m, sizeof m);
     }
+#else                                               /* the barrier names an x86 vector register: elsewhere, */
+    for (int l = 0; l < W; l++)                     /* lane by lane */
+        u[l] = uniform01(seed, s0 + (uint64_t)l, idx);
+#endif
 }
 
 typedef struct {
