@@ -68,12 +68,15 @@ void bb_interval_fwd(int64_t n, int64_t m, int64_t us, double lo, double w, int6
 }
 
 /* x = lo + w sigmoid(u) alone, by bb_interval_fwd's expression (the same values): for values that need no gradient
- * and no log-Jacobian (IntervalBijection.__call__ without a graph: a texel sweep's renders, the outputs' maps) */
+ * and no log-Jacobian (IntervalBijection.__call__ without a graph: a texel sweep's renders, the outputs' maps).
+ * In one thread below torch's grain size (32768 values), as torch.sigmoid, which it replaces, ran there: a small
+ * fit's sweep calls it six times a step, and waking the other thread costs more than the work (and much more when
+ * another process holds the cores) */
 void bb_interval_map(int64_t n, int64_t m, int64_t us, double lo, double w, int64_t nt, const REAL *restrict u,
                      REAL *restrict x)
 {
     const REAL rlo = (REAL)lo, rw = (REAL)w;
-#pragma omp parallel for num_threads(nt) schedule(static)
+#pragma omp parallel for num_threads(nt) schedule(static) if (n * m >= 32768)
     for (int64_t i = 0; i < n; i++) {
         const REAL *restrict ui = u + i * us;
         REAL *restrict xi = x + i * m;
