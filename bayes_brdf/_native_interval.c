@@ -18,6 +18,15 @@
 #include <omp.h>
 #include <stdint.h>
 
+/* sigmoid(u), and t = e^-|u| (which the log-Jacobian reuses): the one expression of the forward and the map */
+static inline REAL sigmoid_t(REAL u, REAL *t)
+{
+    const REAL a = u < 0 ? -u : u;
+    *t = exp(-a);
+    const REAL inv = (REAL)1 / ((REAL)1 + *t);
+    return u >= 0 ? inv : *t * inv;
+}
+
 void bb_interval_fwd(int64_t n, int64_t m, int64_t us, double lo, double w, int64_t nt, const REAL *restrict u,
                      REAL *restrict x, REAL *restrict s, double *restrict ladj)
 {
@@ -39,27 +48,23 @@ void bb_interval_fwd(int64_t n, int64_t m, int64_t us, double lo, double w, int6
 #pragma omp simd
                     for (int l = 0; l < 8; l++) {
                         const REAL uj = ui[j + k + l];
-                        const REAL a = uj < 0 ? -uj : uj;
-                        const REAL t = exp(-a);
-                        const REAL inv = (REAL)1 / ((REAL)1 + t);
-                        const REAL sj = uj >= 0 ? inv : t * inv;
+                        REAL t;
+                        const REAL sj = sigmoid_t(uj, &t);
                         si[j + k + l] = sj;
                         xi[j + k + l] = rlo + rw * sj;
                         prod[l] *= (REAL)1 + t;
-                        sa[l] += a;
+                        sa[l] += uj < 0 ? -uj : uj;
                     }
                 }
 #pragma omp simd reduction(+ : part)
                 for (int l = 0; l < 8; l++) part += -sa[l] - (REAL)2 * log(prod[l]);
             }
             for (; j < e; j++) {
-                const REAL a = ui[j] < 0 ? -ui[j] : ui[j];
-                const REAL t = exp(-a);
-                const REAL inv = (REAL)1 / ((REAL)1 + t);
-                const REAL sj = ui[j] >= 0 ? inv : t * inv;
+                REAL t;
+                const REAL sj = sigmoid_t(ui[j], &t);
                 si[j] = sj;
                 xi[j] = rlo + rw * sj;
-                part += -a - (REAL)2 * log1p(t);
+                part += -(ui[j] < 0 ? -ui[j] : ui[j]) - (REAL)2 * log1p(t);
             }
             acc += (double)part;
         }
@@ -67,7 +72,7 @@ void bb_interval_fwd(int64_t n, int64_t m, int64_t us, double lo, double w, int6
     }
 }
 
-/* x = lo + w sigmoid(u) alone, by bb_interval_fwd's expression (the same values): for values that need no gradient
+/* x = lo + w sigmoid(u) alone, by bb_interval_fwd's expression (sigmoid_t): for values that need no gradient
  * and no log-Jacobian (IntervalBijection.__call__ without a graph: a texel sweep's renders, the outputs' maps).
  * In one thread below torch's grain size (32768 values), as torch.sigmoid, which it replaces, ran there: a small
  * fit's sweep calls it six times a step, and waking the other thread costs more than the work (and much more when
@@ -82,11 +87,8 @@ void bb_interval_map(int64_t n, int64_t m, int64_t us, double lo, double w, int6
         REAL *restrict xi = x + i * m;
 #pragma omp simd
         for (int64_t j = 0; j < m; j++) {
-            const REAL uj = ui[j];
-            const REAL a = uj < 0 ? -uj : uj;
-            const REAL t = exp(-a);
-            const REAL inv = (REAL)1 / ((REAL)1 + t);
-            xi[j] = rlo + rw * (uj >= 0 ? inv : t * inv);
+            REAL t;
+            xi[j] = rlo + rw * sigmoid_t(ui[j], &t);
         }
     }
 }

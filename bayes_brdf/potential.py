@@ -81,6 +81,15 @@ def _interval_map_kernel(u: Tensor):
                            extra_flags=("-ffast-math",))
 
 
+def _rows(u: Tensor) -> tuple[Tensor, int, int, int]:
+    """``(u, n, m, stride)``: ``u`` as the interval kernels read it, ``n`` rows of ``m`` contiguous values ``stride``
+    apart (a slice of ``z`` as it is; a row that is not contiguous copied first)."""
+    if not u[0].is_contiguous():
+        u = u.contiguous()
+    n, m = u.shape[0], u[0].numel()
+    return u, n, m, (u.stride(0) if n > 1 else m)
+
+
 class _IntervalFn(torch.autograd.Function):
     """``x = lo + (hi - lo) sigmoid(u)`` and the per-particle ``sum log|dx/du|`` in one fused pass (a native
     loop on CPU: one read of ``u`` and one write of ``x`` forward, one pass backward; torch ops elsewhere)."""
@@ -90,13 +99,11 @@ class _IntervalFn(torch.autograd.Function):
         ctx.width = hi - lo
         k = _interval_kernels(u)
         if k is not None:
-            if not u[0].is_contiguous():
-                u = u.contiguous()
-            n, m = u.shape[0], u[0].numel()
+            u, n, m, us = _rows(u)
             x = torch.empty(u.shape, dtype=u.dtype)
             s = torch.empty(u.shape, dtype=u.dtype)
             ladj = torch.empty(n, dtype=torch.float64)
-            k[0](n, m, u.stride(0) if n > 1 else m, float(lo), float(hi - lo), torch.get_num_threads(), *map(ptr, (u, x, s, ladj)))
+            k[0](n, m, us, float(lo), float(hi - lo), torch.get_num_threads(), *map(ptr, (u, x, s, ladj)))
             ctx.save_for_backward(s)
             ctx.native = k[1]
             return x, ladj.to(u.dtype)
@@ -219,12 +226,9 @@ class IntervalBijection:
         if not u.requires_grad and u.dim() > 0 and u.numel() > 0:
             k = _interval_map_kernel(u)
             if k is not None:                         # one native pass (a texel sweep's renders, the outputs' maps)
-                if not u[0].is_contiguous():
-                    u = u.contiguous()
-                n, m = u.shape[0], u[0].numel()
+                u, n, m, us = _rows(u)
                 x = torch.empty(u.shape, dtype=u.dtype)
-                k(n, m, u.stride(0) if n > 1 else m, float(self.lo), float(self.hi - self.lo),
-                  torch.get_num_threads(), ptr(u), ptr(x))
+                k(n, m, us, float(self.lo), float(self.hi - self.lo), torch.get_num_threads(), ptr(u), ptr(x))
                 return x
         x = torch.sigmoid(u)
         if self.lo == 0.0 and self.hi == 1.0:

@@ -278,28 +278,30 @@ static void gather_centres(const REAL *c, int64_t g, int64_t T, int64_t b, int64
                 C[j][q][l] = (LR)c[((g * T + tl[l]) * b + j) * k + q];
 }
 
-/* One block of W texels of group g: t0 its first, tl its lanes' texels (lane_texels), nl of them real; buf the
- * thread's scratch; args the entry point's own */
+/* One block of `step` texels of group g: t0 its first, nl of them real, tl its first W lanes' texels (lane_texels);
+ * buf the thread's scratch; args the entry point's own */
 typedef void (*LaneBlock)(const void *args, Lane *buf, int64_t g, int64_t t0, int64_t nl, const int64_t tl[W]);
 
-/* body over every group g < G and block of W of the T texels, in parallel over the blocks (OpenMP, static), each
- * thread with `scratch` bytes of its own; 0 on success, 1 when a thread's scratch could not be allocated */
-static int lane_blocks(int64_t G, int64_t T, int64_t nthreads, size_t scratch, LaneBlock body, const void *args)
+/* body over every group g < G and block of `step` of the T texels (W: one per lane; bb_texel_propose: a stage of TS),
+ * in parallel over the blocks (OpenMP, static), each thread with `scratch` zeroed bytes of its own; 0 on success, 1
+ * when a thread's scratch could not be allocated */
+static int lane_blocks(int64_t G, int64_t T, int64_t step, int64_t nthreads, size_t scratch, LaneBlock body,
+                       const void *args)
 {
-    const int64_t nblk = (T + W - 1) / W;
+    const int64_t nblk = (T + step - 1) / step;
     int failed = 0;
 #pragma omp parallel num_threads(nthreads) reduction(| : failed)
     {
-        Lane *buf = malloc(scratch);
+        Lane *buf = calloc(1, scratch);
         failed = !buf;
 #pragma omp for schedule(static)
         for (int64_t gb = 0; gb < G * nblk; gb++) {
             if (!buf)
                 continue;
-            const int64_t g = gb / nblk, t0 = (gb % nblk) * W;
+            const int64_t g = gb / nblk, t0 = (gb % nblk) * step;
             int64_t tl[W];
             lane_texels(t0, T, tl);
-            body(args, buf, g, t0, T - t0 < W ? T - t0 : W, tl);
+            body(args, buf, g, t0, T - t0 < step ? T - t0 : step, tl);
         }
         free(buf);
     }
@@ -329,7 +331,7 @@ int bb_texel_scale(int64_t G, int64_t T, int64_t b, int64_t k, int64_t nthreads,
     if (k > KMAX || b > BMAX || b < 2)
         return 1;
     const ScaleArgs args = {T, b, k, c, bw, hmin, h};
-    return lane_blocks(G, T, nthreads, 2 * b * sizeof(Lane), scale_block, &args);
+    return lane_blocks(G, T, W, nthreads, 2 * b * sizeof(Lane), scale_block, &args);
 }
 
 typedef struct { int64_t T, a, b, k; const REAL *c, *x, *h; double defensive; REAL *logq; } LogqArgs;
@@ -365,7 +367,7 @@ int bb_texel_logq(int64_t G, int64_t T, int64_t a, int64_t b, int64_t k, int64_t
     if (k > KMAX || b > BMAX)
         return 1;
     const LogqArgs args = {T, a, b, k, c, x, h, defensive, logq};
-    return lane_blocks(G, T, nthreads, 2 * b * sizeof(Lane) + b * sizeof(LR[W]), logq_block, &args);
+    return lane_blocks(G, T, W, nthreads, 2 * b * sizeof(Lane) + b * sizeof(LR[W]), logq_block, &args);
 }
 
 /* ---------------------------------------------------------------------------------------------- the whole move */
@@ -552,15 +554,25 @@ INLINE void propose_k(const ProposeArgs *pa, Lane *buf, int64_t g, int64_t t0, i
     }
 }
 
-/* The texels tc..te of group g (a stage: at most TS): when each coordinate's columns are a run (texel_layout's always
- * are), the rows' runs are copied into the thread's stage (st: the other half's, then the movers', then the proposals'
- * [k][TS] each), so that the blocks read and write it instead of 3 k (a + b) strided streams, and the proposals are
- * copied out at the end; else the blocks use the rows in place. propose_k inlined with k = 4 (three albedo channels
- * and roughness: the common case) for constant loop bounds */
-static void propose_stage(const ProposeArgs *pa, Lane *buf, REAL *st, int64_t g, int64_t tc, int64_t te)
+/* propose_k's scratch (its Lanes and exponents), in bytes; the stage follows it in a thread's buffer */
+static size_t propose_scratch(int64_t a, int64_t b)
 {
-    const int64_t T = pa->T, a = pa->a, b = pa->b, k = pa->k, D = pa->D, n = te - tc;
+    return (3 * b + 6 * a) * sizeof(Lane) + b * sizeof(LR[W]);
+}
+
+/* The n texels from tc of group g (a stage: at most TS): when each coordinate's columns are a run (texel_layout's
+ * always are), the rows' runs are copied into the thread's stage (after propose_k's scratch in buf: the other half's,
+ * then the movers', then the proposals' [k][TS] each; zeroed, for the lanes past a stage's end), so that the blocks
+ * read and write it instead of 3 k (a + b) strided streams, and the proposals are copied out at the end; else the
+ * blocks use the rows in place. propose_k inlined with k = 4 (three albedo channels and roughness: the common case)
+ * for constant loop bounds */
+static void propose_stage(const void *args, Lane *buf, int64_t g, int64_t tc, int64_t n, const int64_t tl0[W])
+{
+    (void)tl0;
+    const ProposeArgs *pa = args;
+    const int64_t T = pa->T, a = pa->a, b = pa->b, k = pa->k, D = pa->D, te = tc + n;
     const int64_t *layout = pa->layout;
+    REAL *st = (REAL *)((char *)buf + propose_scratch(a, b));
     Rows R;
     R.run = 1;
     for (int64_t q = 0; q < k; q++) {
@@ -574,7 +586,6 @@ static void propose_stage(const ProposeArgs *pa, Lane *buf, REAL *st, int64_t g,
         R.za[i] = pa->z + pa->A[g * a + i] * D;
         R.zo[i] = pa->zp + (g * a + i) * D;
     }
-    REAL *zo[BMAX];
     if (R.run) {
         for (int64_t j = 0; j < b + a; j++) {
             const REAL *src = j < b ? R.zb[j] : R.za[j - b];
@@ -583,10 +594,8 @@ static void propose_stage(const ProposeArgs *pa, Lane *buf, REAL *st, int64_t g,
                 memcpy(dst + q * TS, src + R.c0[q], (size_t)n * sizeof(REAL));
             if (j < b) R.zb[j] = dst; else R.za[j - b] = dst;
         }
-        for (int64_t i = 0; i < a; i++) {
-            zo[i] = R.zo[i];
+        for (int64_t i = 0; i < a; i++)
             R.zo[i] = st + (b + a + i) * k * TS;
-        }
         for (int64_t q = 0; q < k; q++)
             R.c0[q] = q * TS;
     }
@@ -602,7 +611,7 @@ static void propose_stage(const ProposeArgs *pa, Lane *buf, REAL *st, int64_t g,
     if (R.run)
         for (int64_t i = 0; i < a; i++)
             for (int64_t q = 0; q < k; q++)
-                memcpy(zo[i] + layout[tc * k + q], R.zo[i] + q * TS, (size_t)n * sizeof(REAL));
+                memcpy(pa->zp + (g * a + i) * D + layout[tc * k + q], R.zo[i] + q * TS, (size_t)n * sizeof(REAL));
 }
 
 /* For every mover i (rows A [G a] of z [N, D], the group g = i / a) and texel t (its coordinates layout [T, k]):
@@ -619,25 +628,8 @@ int bb_texel_propose(int64_t G, int64_t T, int64_t a, int64_t b, int64_t k, int6
     if (k > KMAX || b > BMAX || a > BMAX || b < 2)     /* a mover's draws: 2 + k <= 10 of its stream's 64 */
         return 1;
     const ProposeArgs args = {T, a, b, k, D, z, layout, jac, A, B, seed, bw, hmin, defensive, zp, dlq};
-    const int64_t nst = (T + TS - 1) / TS;
-    const size_t scratch = (3 * b + 6 * a) * sizeof(Lane) + b * sizeof(LR[W]);
-    int failed = 0;
-#pragma omp parallel num_threads(nthreads) reduction(| : failed)
-    {
-        Lane *buf = malloc(scratch);
-        REAL *st = calloc((size_t)((b + 2 * a) * k * TS), sizeof(REAL));   /* zeros: the lanes past a stage's end */
-        failed = !buf || !st;
-#pragma omp for schedule(static)
-        for (int64_t gs = 0; gs < G * nst; gs++) {
-            if (!buf || !st)
-                continue;
-            const int64_t g = gs / nst, tc = (gs % nst) * TS;
-            propose_stage(&args, buf, st, g, tc, tc + TS < T ? tc + TS : T);
-        }
-        free(buf);
-        free(st);
-    }
-    return failed;
+    return lane_blocks(G, T, TS, nthreads, propose_scratch(a, b) + (size_t)((b + 2 * a) * k * TS) * sizeof(REAL),
+                       propose_stage, &args);
 }
 
 /* the log of uniform01's smallest value, 2^-54 (-37.42995), rounded down: at or below it no draw accepts */
