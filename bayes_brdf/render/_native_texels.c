@@ -48,8 +48,21 @@
 
 typedef REAL vec __attribute__((vector_size(LANES * sizeof(REAL))));
 typedef REAL vecu __attribute__((vector_size(LANES * sizeof(REAL)), aligned(sizeof(REAL))));
-typedef double dvecu __attribute__((vector_size(LANES * sizeof(double)), aligned(sizeof(double))));
-typedef double dvec __attribute__((vector_size(LANES * sizeof(double))));
+/* Energies are summed in double as two halves of LANES / 2 lanes, each as wide as a vec of floats (32 bytes for 8
+ * lanes). One vector of 8 doubles is 64 bytes, which GCC lowers on AVX2 through the stack and general registers, with
+ * a failed store-to-load forwarding on every pixel: on the bunny, one block of particles took 4.4 ms that way and
+ * 3.7 ms in halves. */
+typedef double dhalf __attribute__((vector_size(LANES / 2 * sizeof(double))));
+typedef REAL hvec __attribute__((vector_size(LANES / 2 * sizeof(REAL))));
+struct esum { dhalf lo, hi; };
+static inline void esum_add(struct esum *s, vec e)
+{
+    hvec lo, hi;
+    memcpy(&lo, &e, sizeof lo);
+    memcpy(&hi, (const char *)&e + sizeof lo, sizeof hi);
+    s->lo += __builtin_convertvector(lo, dhalf);
+    s->hi += __builtin_convertvector(hi, dhalf);
+}
 #define LD(p) ((vec)(*(const vecu *)(p)))
 #define ST(p, x) (*(vecu *)(p) = (x))
 
@@ -252,10 +265,10 @@ struct pres { vec e, acc[7]; };
  * channel gradients. It writes no gradient: the caller deposits them (deposit), after every block's pixel. */
 static inline __attribute__((always_inline)) void pixel(const struct targs *restrict q, const int64_t p,
                                                         const int64_t b, const int64_t mode, const int64_t L,
-                                                        const int envp, const int64_t l2, const int64_t flags,
-                                                        struct pres *restrict res)
+                                                        const int64_t Vc, const int envp, const int64_t l2,
+                                                        const int64_t flags, struct pres *restrict res)
 {
-    const int64_t V = q->V, P = q->P, np = q->np, row = q->row, grad = q->grad;
+    const int64_t V = Vc ? Vc : q->V, P = q->P, np = q->np, row = q->row, grad = q->grad;
     const REAL kf = q->kf;
     const int32_t *ti = q->tidx + p * 4;
     const REAL *tw = q->tw + p * 4;
@@ -345,10 +358,10 @@ static inline __attribute__((always_inline)) void pixel(const struct targs *rest
 static inline __attribute__((always_inline)) void deposit(const struct targs *restrict q, REAL *restrict G,
                                                           const int64_t p, const int64_t b, const int64_t mode,
                                                           const int64_t flags, const struct pres *restrict res,
-                                                          dvec *es, vec gcs[7])
+                                                          struct esum *es, vec gcs[7])
 {
     const int64_t np = q->np, row = q->row;
-    if (mode == MODE_LOSS) *es += __builtin_convertvector(res->e, dvec);
+    if (mode == MODE_LOSS) esum_add(es, res->e);
     if (!q->grad) return;
     const int32_t *li = q->lidx + p * 4;
     const REAL *tw = q->tw + p * 4;
@@ -374,29 +387,30 @@ static inline __attribute__((always_inline)) void deposit(const struct targs *re
 static inline __attribute__((always_inline)) void blocks(const struct targs *restrict q, REAL *restrict G,
                                                          REAL *restrict GC, double *restrict ES, const int64_t b,
                                                          const int nb, const int64_t p0, const int64_t p1,
-                                                         const int64_t mode, const int64_t L, const int envp,
-                                                         const int64_t l2, const int64_t flags)
+                                                         const int64_t mode, const int64_t L, const int64_t Vc,
+                                                         const int envp, const int64_t l2, const int64_t flags)
 {
     const int64_t np = q->np;
-    dvec es[3] = {{0}};   /* the blocks' energies and constant maps' gradients, summed in pixel order */
+    struct esum es[3] = {{{0}}};   /* the blocks' energies and constant maps' gradients, summed in pixel order */
     vec gcs[3][7] = {{{0}}};
     for (int64_t p = p0; p < p1; p++) {
         struct pres r[3];
-        for (int j = 0; j < nb; j++) pixel(q, p, b + j * LANES, mode, L, envp, l2, flags, &r[j]);
+        for (int j = 0; j < nb; j++) pixel(q, p, b + j * LANES, mode, L, Vc, envp, l2, flags, &r[j]);
         for (int j = 0; j < nb; j++) deposit(q, G, p, b + j * LANES, mode, flags, &r[j], &es[j], gcs[j]);
     }
     for (int j = 0; j < nb; j++) {
-        *(dvecu *)(ES + b + j * LANES) = es[j];
+        memcpy(ES + b + j * LANES, &es[j].lo, sizeof es[j].lo);
+        memcpy(ES + b + j * LANES + LANES / 2, &es[j].hi, sizeof es[j].hi);
         for (int ch = 0; ch < 7; ch++) ST(GC + ch * np + b + j * LANES, gcs[j][ch]);
     }
 }
 
-/* One chunk of pixels. Written once for every case; chunk() calls it with the common cases' mode, lights,
- * environment, loss and flags as constants, so that the compiler drops the branches and the per-light arrays
- * and keeps more of the blocks' terms in registers. */
+/* One chunk of pixels. Written once for every case; chunk() calls it with the common cases' mode, lights, views
+ * (Vc; 0: q->V), environment, loss and flags as constants, so that the compiler drops the branches, the views' loop
+ * and the per-light arrays and keeps more of the blocks' terms in registers. */
 static inline __attribute__((always_inline)) void chunk_body(const struct targs *restrict q, const int64_t c,
-                                                             const int64_t mode, const int64_t L, const int envp,
-                                                             const int64_t l2, const int64_t flags)
+                                                             const int64_t mode, const int64_t L, const int64_t Vc,
+                                                             const int envp, const int64_t l2, const int64_t flags)
 {
     const int64_t np = q->np, row = q->row;
     REAL *restrict G = q->G + q->uoff[c] * row, *restrict GC = q->GC + c * 7 * np;
@@ -405,30 +419,31 @@ static inline __attribute__((always_inline)) void chunk_body(const struct targs 
     if (q->grad) memset(G, 0, (size_t)((q->uoff[c + 1] - q->uoff[c]) * row) * sizeof(REAL));
     for (int64_t b = 0; b < np;) {   /* the particles in groups of up to 3 blocks */
         const int64_t nb = (np - b) / LANES;
-        if (nb >= 3) { blocks(q, G, GC, ES, b, 3, p0, p1, mode, L, envp, l2, flags); b += 3 * LANES; }
-        else if (nb == 2) { blocks(q, G, GC, ES, b, 2, p0, p1, mode, L, envp, l2, flags); b += 2 * LANES; }
-        else { blocks(q, G, GC, ES, b, 1, p0, p1, mode, L, envp, l2, flags); b += LANES; }
+        if (nb >= 3) { blocks(q, G, GC, ES, b, 3, p0, p1, mode, L, Vc, envp, l2, flags); b += 3 * LANES; }
+        else if (nb == 2) { blocks(q, G, GC, ES, b, 2, p0, p1, mode, L, Vc, envp, l2, flags); b += 2 * LANES; }
+        else { blocks(q, G, GC, ES, b, 1, p0, p1, mode, L, Vc, envp, l2, flags); b += LANES; }
     }
 }
 
 static void chunk(const struct targs *restrict q, const int64_t c)
 {
-    /* the fits' cases with constants: one light (a flash) or none (an environment alone), L1 loss, and the maps
-     * all per texel or the specular constant (without its gradient) */
+    /* the fits' cases with constants: one view (a fit's pixels come compacted into one row: shade.shade_loss), one
+     * light (a flash) or none (an environment alone), L1 loss, and the maps all per texel or the specular constant
+     * (without its gradient) */
     const int64_t f = q->flags;
-    if (q->mode == MODE_LOSS && !q->l2 && (f == 0 || f == (4 | 32))) {
+    if (q->mode == MODE_LOSS && q->V == 1 && !q->l2 && (f == 0 || f == (4 | 32))) {
         if (q->L == 1 && !q->env) {
-            if (f == 0) chunk_body(q, c, MODE_LOSS, 1, 0, 0, 0);
-            else chunk_body(q, c, MODE_LOSS, 1, 0, 0, 4 | 32);
+            if (f == 0) chunk_body(q, c, MODE_LOSS, 1, 1, 0, 0, 0);
+            else chunk_body(q, c, MODE_LOSS, 1, 1, 0, 0, 4 | 32);
             return;
         }
         if (q->L == 0 && q->env) {
-            if (f == 0) chunk_body(q, c, MODE_LOSS, 0, 1, 0, 0);
-            else chunk_body(q, c, MODE_LOSS, 0, 1, 0, 4 | 32);
+            if (f == 0) chunk_body(q, c, MODE_LOSS, 0, 1, 1, 0, 0);
+            else chunk_body(q, c, MODE_LOSS, 0, 1, 1, 0, 4 | 32);
             return;
         }
     }
-    chunk_body(q, c, q->mode, q->L, q->env != 0, q->l2, f);
+    chunk_body(q, c, q->mode, q->L, 0, q->env != 0, q->l2, f);
 }
 
 /* The widest vector the compiler was allowed (-march): 64 bytes with AVX-512, else 32 */
@@ -440,6 +455,8 @@ int64_t bb_texel_vector_bytes(void)
     return 32;
 #endif
 }
+
+static void *amalloc(size_t n) { return aligned_alloc(64, (n + 63) / 64 * 64); }
 
 int bb_shade_texels(int64_t mode, int64_t n, int64_t V, int64_t L, int64_t P, int64_t ks_factor, int64_t l2,
                     int64_t need_grad, int64_t nthreads, int64_t T, int64_t flags, int64_t nchunk,
@@ -469,11 +486,12 @@ int bb_shade_texels(int64_t mode, int64_t n, int64_t V, int64_t L, int64_t P, in
     }
     const int64_t nch = q.nch, row = nch * np, rows = uoff[nchunk];
     q.row = row;
-    REAL *M = malloc((size_t)(T * row + 1) * sizeof(REAL)), *C = malloc((size_t)(7 * np) * sizeof(REAL));
-    REAL *Gb = q.grad ? malloc((size_t)(rows * row + 1) * sizeof(REAL)) : 0;
-    REAL *GC = malloc((size_t)(nchunk * 7 * np + 1) * sizeof(REAL));
-    REAL *B = q.grad ? malloc((size_t)(nthreads * TILE * row + 1) * sizeof(REAL)) : 0;
-    REAL *Z = calloc((size_t)row + 8, sizeof(REAL));   /* the gradient row of a texel that no pixel reads */
+    REAL *M = amalloc((size_t)(T * row + 1) * sizeof(REAL)), *C = amalloc((size_t)(7 * np) * sizeof(REAL));
+    REAL *Gb = q.grad ? amalloc((size_t)(rows * row + 1) * sizeof(REAL)) : 0;
+    REAL *GC = amalloc((size_t)(nchunk * 7 * np + 1) * sizeof(REAL));
+    REAL *B = q.grad ? amalloc((size_t)(nthreads * TILE * row + 1) * sizeof(REAL)) : 0;
+    REAL *Z = amalloc(((size_t)row + 8) * sizeof(REAL));   /* the gradient row of a texel that no pixel reads */
+    if (Z) memset(Z, 0, ((size_t)row + 8) * sizeof(REAL));
     double *ES = malloc((size_t)(nchunk * np + 1) * sizeof(double));
     if (!M || !C || !GC || !ES || !Z || (q.grad && (!Gb || !B))) {
         free(M); free(C); free(Gb); free(GC); free(B); free(ES); free(Z);
