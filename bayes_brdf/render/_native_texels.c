@@ -275,6 +275,7 @@ static inline __attribute__((always_inline)) void pixel(const struct targs *rest
     const REAL w0 = tw[0], w1 = tw[1], w2 = tw[2], w3 = tw[3];
     const REAL *M0 = q->M + ti[0] * row, *M1 = q->M + ti[1] * row, *M2 = q->M + ti[2] * row, *M3 = q->M + ti[3] * row;
     vec val[7];
+#pragma GCC unroll 7   /* see deposit */
     for (int ch = 0; ch < 7; ch++) {
         const int64_t o = slot_of(ch, flags) * np + b;
         val[ch] = slot_of(ch, flags) < 0 ? LD(q->C + ch * np + b)
@@ -367,6 +368,7 @@ static inline __attribute__((always_inline)) void deposit(const struct targs *re
     const REAL *tw = q->tw + p * 4;
     const REAL w0 = tw[0], w1 = tw[1], w2 = tw[2], w3 = tw[3];
     REAL *G0 = G + li[0] * row, *G1 = G + li[1] * row, *G2 = G + li[2] * row, *G3 = G + li[3] * row;
+#pragma GCC unroll 7   /* unrolled, slot_of(ch, flags) is a constant (else a loop of its own every time) */
     for (int ch = 0; ch < 7; ch++) {
         if (flags & (8 << map_of(ch))) continue;
         const vec g = res->acc[ch];
