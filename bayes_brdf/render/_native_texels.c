@@ -195,9 +195,10 @@ static void from_texel_major(REAL *restrict dst, int64_t stride, const REAL *con
 }
 
 /* Catmull-Rom in log r of the environment's tables at the lanes' roughness: values and d/dr of a, b.
- * The lanes' nodes and weights are computed as vectors without branches; each lane then combines its 4 slots
- * (a slot's 6 values load as one vector, rows padded by 2) into a row, and a transpose per 8 lanes turns the
- * lanes' rows into vectors over the lanes. */
+ * The lanes' nodes and weights are computed as vectors without branches; each lane's 4 slots load as 4 rows (a
+ * slot's 6 values as one vector, rows padded by 2), a transpose per slot and 8 lanes turns them into vectors over
+ * the lanes, and the slots are weighted as vectors (weighting each lane's rows by its weights before one transpose
+ * took a broadcast of each of its 8 weights: on the bunny, the kernel 16.1-17.0 against 14.1 ms, the same bits). */
 static inline void env_lookup(const struct targs *restrict q, const REAL *restrict ep, const vec rr,
                               vec va[6], vec vd[6])
 {
@@ -230,19 +231,22 @@ static inline void env_lookup(const struct targs *restrict q, const REAL *restri
     }
 #else
     for (int g = 0; g < LANES; g += 8) {
-        vrow rv[8], rd[8];
-        for (int i = 0; i < 8; i++) {   /* one lane: its 4 slots, as vectors over the 6 values */
-            const int j = g + i;
-            const REAL *tb = ep + 3 + k[j] * 6;
-            const vrow f0 = LDR(tb), f1 = LDR(tb + 6), f2 = LDR(tb + 12), f3 = LDR(tb + 18);
-            rv[i] = w0[j] * f0 + w1[j] * f1 + w2[j] * f2 + w3[j] * f3;
-            rd[i] = d0[j] * f0 + d1[j] * f1 + d2[j] * f2 + d3[j] * f3;
+        vrow F[4][8];   /* tap m's slot of each of 8 lanes (6 values), transposed into vectors over the lanes */
+        for (int i = 0; i < 8; i++) {
+            const REAL *tb = ep + 3 + k[g + i] * 6;
+            for (int m = 0; m < 4; m++) F[m][i] = LDR(tb + 6 * m);
         }
-        transpose8(rv);
-        transpose8(rd);
+        for (int m = 0; m < 4; m++) transpose8(F[m]);
+        vrow W[4], D[4];
+        memcpy(W, (const REAL *)&w0 + g, sizeof W[0]); memcpy(W + 1, (const REAL *)&w1 + g, sizeof W[0]);
+        memcpy(W + 2, (const REAL *)&w2 + g, sizeof W[0]); memcpy(W + 3, (const REAL *)&w3 + g, sizeof W[0]);
+        memcpy(D, (const REAL *)&d0 + g, sizeof D[0]); memcpy(D + 1, (const REAL *)&d1 + g, sizeof D[0]);
+        memcpy(D + 2, (const REAL *)&d2 + g, sizeof D[0]); memcpy(D + 3, (const REAL *)&d3 + g, sizeof D[0]);
         for (int c = 0; c < 6; c++) {
-            memcpy((REAL *)&va[c] + g, &rv[c], sizeof rv[c]);
-            memcpy((REAL *)&vd[c] + g, &rd[c], sizeof rd[c]);
+            const vrow a = W[0] * F[0][c] + W[1] * F[1][c] + W[2] * F[2][c] + W[3] * F[3][c];
+            const vrow d = D[0] * F[0][c] + D[1] * F[1][c] + D[2] * F[2][c] + D[3] * F[3][c];
+            memcpy((REAL *)&va[c] + g, &a, sizeof a);
+            memcpy((REAL *)&vd[c] + g, &d, sizeof d);
         }
     }
 #endif
