@@ -237,7 +237,7 @@ static inline void env_lookup(const struct targs *restrict q, const REAL *restri
             for (int m = 0; m < 4; m++) F[m][i] = LDR(tb + 6 * m);
         }
         for (int m = 0; m < 4; m++) transpose8(F[m]);
-        vrow W[4], D[4];
+        vrow W[4], D[4];   /* the 8 lanes' weights of each slot (one by one: from an array, 8 % slower) */
         memcpy(W, (const REAL *)&w0 + g, sizeof W[0]); memcpy(W + 1, (const REAL *)&w1 + g, sizeof W[0]);
         memcpy(W + 2, (const REAL *)&w2 + g, sizeof W[0]); memcpy(W + 3, (const REAL *)&w3 + g, sizeof W[0]);
         memcpy(D, (const REAL *)&d0 + g, sizeof D[0]); memcpy(D + 1, (const REAL *)&d1 + g, sizeof D[0]);
@@ -405,8 +405,7 @@ static inline __attribute__((always_inline)) void blocks(const struct targs *res
         for (int j = 0; j < nb; j++) deposit(q, G, p, b + j * LANES, mode, flags, &r[j], &es[j], gcs[j]);
     }
     for (int j = 0; j < nb; j++) {
-        memcpy(ES + b + j * LANES, &es[j].lo, sizeof es[j].lo);
-        memcpy(ES + b + j * LANES + LANES / 2, &es[j].hi, sizeof es[j].hi);
+        memcpy(ES + b + j * LANES, &es[j], sizeof es[j]);   /* lo, then hi: the block's lanes in order */
         for (int ch = 0; ch < 7; ch++) ST(GC + ch * np + b + j * LANES, gcs[j][ch]);
     }
 }
